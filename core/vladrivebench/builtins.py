@@ -1,0 +1,21 @@
+"""The core's built-in plugin: registered through the same entry-point group and hooks as any other.
+
+Registration imports nothing heavy: factories are referenced by import path and built on first use.
+"""
+
+from __future__ import annotations
+
+import importlib.resources
+from pathlib import Path
+
+from . import hookimpl
+
+
+def suite_directory() -> Path:
+    """Where the scenario suite (the top-level ``scenarios/`` folder) is installed."""
+    return Path(str(importlib.resources.files("vladrivebench.suite")))
+
+
+@hookimpl
+def register_scenarios(register):
+    register(suite_directory(), description="the paper's scenario suite (Appendix A) and intervention routes")

@@ -1,0 +1,3 @@
+"""``vdb run`` / ``vdb scenarios`` / ``vdb demo`` (being built)."""
+
+COMMANDS: list = []

@@ -1,0 +1,258 @@
+"""Frozen records that flow between simulators, models, controllers, labelers and metrics.
+
+Frames and units: world frame x east, y north, yaw counter-clockwise from +x (radians); the ego frame has
+x forward and y to the left. Distances in metres, speeds in m/s, times in seconds.
+Records are plain frozen dataclasses so that they pickle (process pools) and serialise (episode logs).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import numpy as np
+
+ACTOR_KINDS = ("pedestrian", "car", "animal", "traffic_light", "stop_sign")
+LIGHT_COLOURS = ("red", "yellow", "green")
+NAV_COMMANDS = ("follow_lane", "straight", "left", "right")
+STATED_ACTIONS = ("maintaining", "accelerating", "decelerating", "keep_distance", "none")
+
+
+@dataclass(frozen=True)
+class EgoState:
+    """The ego vehicle's pose and motion in the world frame."""
+
+    x: float
+    y: float
+    yaw: float
+    speed: float
+    steer: float = 0.0
+    length: float = 4.7
+    width: float = 1.9
+
+    def to_ego_frame(self, wx: float, wy: float) -> tuple[float, float]:
+        """World point → ego frame (x forward, y left)."""
+        dx, dy = wx - self.x, wy - self.y
+        c, s = math.cos(self.yaw), math.sin(self.yaw)
+        return c * dx + s * dy, -s * dx + c * dy
+
+    def to_world_frame(self, ex: float, ey: float) -> tuple[float, float]:
+        """Ego-frame point → world frame."""
+        c, s = math.cos(self.yaw), math.sin(self.yaw)
+        return self.x + c * ex - s * ey, self.y + s * ex + c * ey
+
+
+@dataclass(frozen=True)
+class Actor:
+    """One thing in the world the ego must reason about: a road user or a road feature.
+
+    ``kind`` is one of :data:`ACTOR_KINDS`. ``state`` holds the light colour for a traffic light and is
+    ``None`` otherwise. ``length`` is along the actor's heading, ``width`` across it.
+    """
+
+    actor_id: str
+    kind: str
+    x: float
+    y: float
+    yaw: float = 0.0
+    length: float = 0.5
+    width: float = 0.5
+    height: float = 1.7
+    speed: float = 0.0
+    state: str | None = None
+
+
+@dataclass(frozen=True)
+class GroundTruth:
+    """What was true at one step: everything the labelers and quality metrics compare a CoT against.
+
+    ``distance_to_critical`` is measured along the route from the ego's position to the critical feature
+    (positive ahead, negative once passed); it defines the distance zones (far > 20 m, med 10–20 m,
+    near < 10 m, past < 0). ``lead_gap``/``lead_speed`` describe the nearest actor ahead in the ego's lane,
+    for time-to-collision. ``collisions`` and ``violations`` list the events of this step only;
+    ``terminal`` is set on the last step of an episode (``route_complete``, ``collision``, ``timeout``).
+    """
+
+    step: int
+    time: float
+    actors: tuple[Actor, ...] = ()
+    critical_id: str | None = None
+    critical_kind: str | None = None
+    distance_to_critical: float | None = None
+    blocking: bool = False
+    light_state: str | None = None
+    lead_gap: float | None = None
+    lead_speed: float | None = None
+    route_progress: float = 0.0
+    route_length: float = 0.0
+    collisions: tuple[str, ...] = ()
+    violations: tuple[str, ...] = ()
+    terminal: str | None = None
+
+    def actor(self, actor_id: str) -> Actor | None:
+        return next((a for a in self.actors if a.actor_id == actor_id), None)
+
+    def critical(self) -> Actor | None:
+        return self.actor(self.critical_id) if self.critical_id else None
+
+
+@dataclass(frozen=True)
+class Observation:
+    """What a model is given at one step.
+
+    ``image`` is the front camera, ``(H, W, 3)`` uint8. ``ground_truth`` is privileged information: the
+    scripted reference model reads it as its "perception"; a real VLA adapter must not.
+    """
+
+    step: int
+    time: float
+    image: np.ndarray = field(repr=False, compare=False)
+    ego: EgoState
+    command: str
+    ground_truth: GroundTruth
+    scenario_id: str = ""
+
+
+@dataclass(frozen=True)
+class CoTFormat:
+    """How a model writes its chain-of-thought.
+
+    ``kind`` is ``"sentence"`` (one free text, like Alpamayo) or ``"slots"`` (one text per named round,
+    like ORION's scene / objects / decision). ``max_tokens`` is the longest text the model can take.
+    """
+
+    kind: str = "sentence"
+    slots: tuple[str, ...] = ()
+    max_tokens: int | None = None
+
+    @property
+    def is_slotted(self) -> bool:
+        return self.kind == "slots"
+
+
+@dataclass(frozen=True)
+class TrajectorySpec:
+    """The horizon (s) and rate (Hz) of the trajectories a model returns."""
+
+    horizon_s: float = 3.0
+    rate_hz: float = 10.0
+
+
+@dataclass(frozen=True)
+class CoT:
+    """A chain-of-thought: its text, its named slots (multi-round formats) and the model's own state.
+
+    ``text`` is the whole CoT as one string (slots joined in order for slotted formats). ``state`` is opaque
+    to the benchmark (a KV cache, a hidden state, a dict of internals); it is never compared nor logged.
+    ``spliced`` says whether the text was injected rather than generated.
+    """
+
+    text: str
+    slots: dict[str, str] = field(default_factory=dict)
+    state: Any = field(default=None, repr=False, compare=False)
+    spliced: bool = False
+
+    @staticmethod
+    def join_slots(slots: dict[str, str]) -> str:
+        return " ".join(slots[name] for name in slots)
+
+
+@dataclass(frozen=True)
+class Trajectory:
+    """Timed waypoints in the ego frame at the moment of prediction.
+
+    ``times`` has shape ``(T,)`` strictly increasing and positive (seconds ahead); ``xy`` has shape
+    ``(T, 2)``: x forward, y left, with the ego at the origin at time 0.
+    """
+
+    times: np.ndarray
+    xy: np.ndarray
+
+    def problems(self) -> str | None:
+        """Why this trajectory cannot be used, or ``None`` when it is well formed."""
+        times, xy = np.asarray(self.times), np.asarray(self.xy)
+        if times.ndim != 1 or len(times) == 0:
+            return f"times must have shape (T,) with T > 0, got {times.shape}"
+        if xy.shape != (len(times), 2):
+            return f"xy must have shape ({len(times)}, 2), got {xy.shape}"
+        if not (np.all(np.isfinite(times)) and np.all(np.isfinite(xy))):
+            return "contains NaN or infinite values"
+        if times[0] <= 0 or np.any(np.diff(times) <= 0):
+            return "times must be positive and strictly increasing"
+        return None
+
+    def forward_displacement(self, horizon_s: float) -> float:
+        """Forward (ego-x) displacement predicted at ``horizon_s``, linearly interpolated from t = 0."""
+        t = np.concatenate([[0.0], np.asarray(self.times, dtype=float)])
+        x = np.concatenate([[0.0], np.asarray(self.xy, dtype=float)[:, 0]])
+        return float(np.interp(horizon_s, t, x))
+
+    def path_length(self, horizon_s: float) -> float:
+        """Distance travelled along the waypoints up to ``horizon_s``."""
+        t = np.concatenate([[0.0], np.asarray(self.times, dtype=float)])
+        pts = np.vstack([[0.0, 0.0], np.asarray(self.xy, dtype=float)])
+        keep = t <= horizon_s + 1e-9
+        seg = np.diff(pts[keep], axis=0)
+        return float(np.sum(np.hypot(seg[:, 0], seg[:, 1])))
+
+    def to_json(self) -> dict[str, list]:
+        return {"times": np.asarray(self.times).tolist(), "xy": np.asarray(self.xy).tolist()}
+
+
+@dataclass(frozen=True)
+class Control:
+    """A controller's output for one step.
+
+    PID-style controllers set ``throttle``/``steer``/``brake`` (the simulator integrates them through the
+    bicycle model); MPC-style controllers also set ``next_state`` and the simulator places the ego there.
+    ``v_des`` is the desired speed commanded for the next step, which action alignment compares with v.
+    """
+
+    throttle: float
+    steer: float
+    brake: float
+    v_des: float
+    next_state: EgoState | None = None
+
+    @property
+    def braking(self) -> bool:
+        return self.brake > 0.0
+
+
+@dataclass(frozen=True)
+class LabelInput:
+    """One CoT to label, with the ground-truth context the labeler may compare it against.
+
+    ``context`` carries the step's ground truth in JSON form: ``critical_kind``, ``critical_position``
+    (ego frame, metres), ``light_state``, ``actors`` (kind + ego-frame position), ``ego_speed``.
+    """
+
+    text: str
+    slots: dict[str, str] = field(default_factory=dict)
+    context: dict[str, Any] = field(default_factory=dict)
+    key: str = ""
+
+
+@dataclass(frozen=True)
+class Labels:
+    """The labels extracted from one CoT (Section 3.3 of the paper plus contradiction).
+
+    ``stated_action`` is one of :data:`STATED_ACTIONS`; ``target_mentioned`` is ``None`` when the step has
+    no critical feature; ``light_colour`` is the colour the CoT states (``None`` if it states none).
+    ``unlabelled`` holds a reason when the labeler could not produce labels; then the rest is meaningless.
+    """
+
+    stated_action: str = "none"
+    target_mentioned: bool | None = None
+    mention_slot: str | None = None
+    light_colour: str | None = None
+    hallucination: bool = False
+    contradiction: bool = False
+    details: dict[str, Any] = field(default_factory=dict)
+    labeler: str = ""
+    version: str = ""
+    unlabelled: str | None = None
+
+    def to_json(self) -> dict[str, Any]:
+        return asdict(self)

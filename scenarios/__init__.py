@@ -1,0 +1,1 @@
+"""The scenario suite, shipped as data inside the core as `vladrivebench.suite`."""
