@@ -72,6 +72,8 @@ class GroundTruth:
     near < 10 m, past < 0). ``lead_gap``/``lead_speed`` describe the nearest actor ahead in the ego's lane,
     for time-to-collision. ``collisions`` and ``violations`` list the events of this step only;
     ``terminal`` is set on the last step of an episode (``route_complete``, ``collision``, ``timeout``).
+    ``route_ahead`` is the centre line of the ego's lane along the route ahead, as ego-frame points every
+    metre up to 50 m (privileged: for expert drivers and the scripted model).
     """
 
     step: int
@@ -89,6 +91,7 @@ class GroundTruth:
     collisions: tuple[str, ...] = ()
     violations: tuple[str, ...] = ()
     terminal: str | None = None
+    route_ahead: tuple[tuple[float, float], ...] = ()
 
     def actor(self, actor_id: str) -> Actor | None:
         return next((a for a in self.actors if a.actor_id == actor_id), None)
