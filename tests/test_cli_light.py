@@ -1,0 +1,34 @@
+"""`vdb --help` and `vdb list-plugins` load every installed plugin yet import nothing heavy."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+
+HEAVY = ("torch", "transformers", "libsumo", "ray")
+
+PROBE = """
+import sys
+from vladrivebench.cli import main
+code = main({args!r})
+heavy = sorted(m for m in {heavy!r} if m in sys.modules)
+print("HEAVY=" + ",".join(heavy), file=sys.stderr)
+sys.exit(code)
+"""
+
+
+@pytest.mark.parametrize("args", [["--help"], ["list-plugins"], ["list-plugins", "--json"]])
+def test_command_imports_no_heavy_module(args):
+    result = subprocess.run([sys.executable, "-c", PROBE.format(args=args, heavy=HEAVY)],
+                            capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    assert "HEAVY=\n" in result.stderr or result.stderr.rstrip().endswith("HEAVY="), result.stderr
+
+
+def test_bad_command_is_one_line_exit_2():
+    result = subprocess.run([sys.executable, "-m", "vladrivebench.cli", "no-such-command"],
+                            capture_output=True, text=True, timeout=120)
+    assert result.returncode == 2
+    assert result.stderr.strip().count("\n") == 0 and "No such command" in result.stderr

@@ -1,0 +1,122 @@
+"""The plugin registry: isolation, duplicates, unknown names, option checking, strict loading."""
+
+from __future__ import annotations
+
+import types
+
+import pytest
+import vladrivebench
+from vladrivebench.errors import ConfigError, PluginLoadError, UnknownNameError
+from vladrivebench.plugins import Registry
+from vladrivebench.testing import isolated_registry
+
+
+def make_plugin(**hooks) -> types.SimpleNamespace:
+    """A plugin object whose attributes are hook implementations."""
+    return types.SimpleNamespace(**{name: vladrivebench.hookimpl(fn) for name, fn in hooks.items()})
+
+
+def toy_model(alpha: float = 0.5, *, label: str = "x"):
+    return ("toy", alpha, label)
+
+
+def models_plugin(*names):
+    def register_models(register):
+        for name in names:
+            register(name, toy_model, description=f"model {name}")
+
+    return make_plugin(register_models=register_models)
+
+
+def test_components_are_collected_with_their_plugin():
+    registry = Registry([("alpha", models_plugin("kv", "qa"))], entry_points=False)
+    assert registry.names("model") == ["kv", "qa"]
+    comp = registry.get("model", "kv")
+    assert (comp.plugin, comp.description) == ("alpha", "model kv")
+    assert registry.plugins[0].registered == {"model": ["kv", "qa"]}
+    assert registry.create("model", "kv", {"alpha": 0.25}) == ("toy", 0.25, "x")
+
+
+def test_unknown_name_suggests_close_matches_and_lists_available():
+    registry = Registry([("alpha", models_plugin("kv", "qa", "scripted"))], entry_points=False)
+    with pytest.raises(UnknownNameError) as info:
+        registry.get("model", "scriptd")
+    message = str(info.value)
+    assert "did you mean 'scripted'?" in message
+    assert "available: kv, qa, scripted" in message
+    assert "\n" not in message
+
+
+def test_duplicate_name_rejects_the_second_plugin_whole():
+    registry = Registry(
+        [("first", models_plugin("kv")), ("second", models_plugin("fresh", "kv"))], entry_points=False
+    )
+    second = next(p for p in registry.plugins if p.name == "second")
+    assert second.status == "error"
+    assert "'kv' is already registered by plugin 'first'" in second.error
+    # nothing the failing plugin registered before the clash survives
+    assert registry.names("model") == ["kv"]
+    assert registry.get("model", "kv").plugin == "first"
+
+
+def test_misspelt_hook_is_reported_and_others_keep_working():
+    bad = make_plugin(register_model=lambda register: None)
+    registry = Registry([("typo", bad), ("good", models_plugin("kv"))], entry_points=False)
+    typo = next(p for p in registry.plugins if p.name == "typo")
+    assert typo.status == "error" and "register_model" in typo.error
+    assert registry.names("model") == ["kv"]
+
+
+def test_plugin_raising_while_registering_is_isolated():
+    def register_models(register):
+        register("half", toy_model)
+        raise RuntimeError("boom")
+
+    registry = Registry([("raiser", make_plugin(register_models=register_models)),
+                         ("good", models_plugin("kv"))], entry_points=False)
+    raiser = next(p for p in registry.plugins if p.name == "raiser")
+    assert raiser.status == "error" and "RuntimeError: boom" in raiser.error
+    assert registry.names("model") == ["kv"]
+
+
+def test_strict_loading_makes_a_failure_fatal():
+    bad = make_plugin(register_model=lambda register: None)
+    with pytest.raises(PluginLoadError, match="typo"):
+        Registry([("typo", bad)], entry_points=False, strict=True)
+
+
+def test_unknown_option_is_one_line_naming_the_accepted_ones():
+    registry = Registry([("alpha", models_plugin("kv"))], entry_points=False)
+    with pytest.raises(ConfigError) as info:
+        registry.create("model", "kv", {"alpah": 1})
+    assert str(info.value) == "model 'kv' does not take option 'alpah' (it takes: alpha, label)"
+
+
+def test_factory_needing_a_missing_package_names_the_pip_command():
+    def needs_torch():
+        import vdb_package_that_does_not_exist  # noqa: F401
+
+    def register_models(register):
+        register("heavy", needs_torch)
+
+    registry = Registry([("heavy", make_plugin(register_models=register_models))], entry_points=False)
+    with pytest.raises(vladrivebench.errors.VdbError, match="pip install vdb_package_that_does_not_exist"):
+        registry.create("model", "heavy")
+
+
+def test_scenario_registration_records_paths(tmp_path):
+    def register_scenarios(register):
+        register(tmp_path, description="pack")
+
+    registry = Registry([("pack", make_plugin(register_scenarios=register_scenarios))], entry_points=False)
+    (comp,) = registry.components("scenario")
+    assert comp.path == tmp_path
+
+
+def test_isolated_registry_restores_the_previous_one():
+    from vladrivebench.plugins import get_registry
+
+    with isolated_registry(("alpha", models_plugin("kv"))):
+        assert get_registry().names("model") == ["kv"]
+    with isolated_registry():
+        assert get_registry().names("model") == []
