@@ -19,3 +19,18 @@ def suite_directory() -> Path:
 @hookimpl
 def register_scenarios(register):
     register(suite_directory(), description="the paper's scenario suite (Appendix A) and intervention routes")
+
+
+@hookimpl
+def register_conditions(register):
+    from .conditions import builtin_conditions  # numpy only: registration stays light
+
+    for condition in builtin_conditions():
+        register(condition.name, _constant(condition), description=condition.description)
+
+
+def _constant(value):
+    def factory():
+        return value
+
+    return factory
