@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import base64
 import dataclasses
+import io
 import json
 import os
 import struct
@@ -48,6 +49,7 @@ STEP_CHANNELS = ("/ego", "/ground_truth", "/cot", "/trajectory", "/control", "/e
 CAMERA_CHANNEL = "/camera"
 PROFILE = "vladrivebench"
 _NS = 1_000_000_000
+_MAGIC = b"\x89MCAP0\r\n"
 
 _FIELD_OF_CHANNEL = {
     "/ego": "ego",
@@ -274,7 +276,8 @@ class EpisodeWriter:
 
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._file = open(self.partial_path, "wb")  # noqa: SIM115 - closed in finish/__exit__
-        self._writer = Writer(self._file, chunk_size=self.chunk_size, compression=CompressionType.ZSTD)
+        self._writer = Writer(self._file, chunk_size=self.chunk_size, compression=CompressionType.ZSTD,
+                              enable_data_crcs=True)
         self._writer.start(profile=PROFILE, library=f"vladrivebench/{__version__}")
         topics = STEP_CHANNELS + ((CAMERA_CHANNEL,) if self.log_images else ())
         for topic in topics:
@@ -353,12 +356,12 @@ def read_episode(path: Path | str, *, recover: bool = False) -> Episode:
     ``recover=True`` a truncated file (e.g. a ``.partial`` left by a killed run) yields its complete
     steps, ``result=None`` and ``complete=False``.
     """
-    from mcap.records import Channel, Message, Metadata
+    from mcap.records import Channel, Footer, Message, Metadata
     from mcap.stream_reader import StreamReader
 
     path = Path(path)
     try:
-        handle = open(path, "rb")  # noqa: SIM115 - closed below
+        data = path.read_bytes()
     except FileNotFoundError:
         raise LogError(f"episode log {path}: no such file") from None
     except OSError as exc:
@@ -369,18 +372,19 @@ def read_episode(path: Path | str, *, recover: bool = False) -> Episode:
     result: dict | None = None
     complete = False
     try:
-        with handle:
-            for record in StreamReader(handle, validate_crcs=True).records:
-                if isinstance(record, Channel):
-                    topics[record.id] = record.topic
-                elif isinstance(record, Message):
-                    _collect_message(by_step, topics, record)
-                elif isinstance(record, Metadata):
-                    if record.name == "episode":
-                        meta = _episode_meta(path, record.metadata)
-                    elif record.name == "result":
-                        result = json.loads(record.metadata["json"])
-            complete = True
+        for record in StreamReader(io.BytesIO(data), validate_crcs=True).records:
+            if isinstance(record, Channel):
+                topics[record.id] = record.topic
+            elif isinstance(record, Message):
+                _collect_message(by_step, topics, record)
+            elif isinstance(record, Metadata):
+                if record.name == "episode":
+                    meta = _episode_meta(path, record.metadata)
+                elif record.name == "result":
+                    result = json.loads(record.metadata["json"])
+            elif isinstance(record, Footer):
+                _check_summary_crc(data, record)
+        complete = True
     except LogError:
         raise
     except Exception as exc:  # mcap raises many types for damaged bytes: one line for all of them
@@ -394,6 +398,16 @@ def read_episode(path: Path | str, *, recover: bool = False) -> Episode:
         if not recover:
             raise LogError(f"episode log {path}: incomplete (no 'result' record); re-run the episode")
     return Episode(path, meta, _assemble_steps(by_step), result if complete else None, complete)
+
+
+def _check_summary_crc(data: bytes, footer: Any) -> None:
+    """The summary section (indexes, repeated schemas) is covered by the footer's CRC: check it."""
+    if footer.summary_crc == 0:
+        return
+    end = len(data) - len(_MAGIC) - 4  # the CRC covers everything up to the CRC field itself
+    start = footer.summary_start or end - 25  # no summary: only the footer's own fields
+    if zlib.crc32(data[start:end]) != footer.summary_crc:
+        raise ValueError("summary section CRC mismatch")
 
 
 def _collect_message(by_step: dict[int, dict[str, Any]], topics: dict[int, str], message: Any) -> None:
@@ -443,7 +457,7 @@ def read_result(path: Path | str) -> dict | None:
     try:
         with open(path, "rb") as handle:
             handle.seek(-8, os.SEEK_END)
-            if handle.read(8) != b"\x89MCAP0\r\n":
+            if handle.read(8) != _MAGIC:
                 return None
             handle.seek(0)
             reader = SeekingReader(handle)
