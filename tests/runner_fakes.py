@@ -206,3 +206,4 @@ SCENARIOS = (
     FakeScenario("car", length=40.0, car_at=30.0),
     FakeScenario("long", length=60.0, max_time_s=8.0),
 )
+
