@@ -29,6 +29,22 @@ def register_conditions(register):
         register(condition.name, _constant(condition), description=condition.description)
 
 
+@hookimpl
+def register_controllers(register):
+    from .controllers import MPCController, PIDController  # numpy only; scipy is imported when solving
+
+    register("pid", PIDController, description="Bench2Drive-style PID tracker (throttle/steer/brake)")
+    register("mpc", MPCController, description="AlpaSim-style MPC tracker that sets the next ego state")
+
+
+@hookimpl
+def register_executors(register):
+    from .executors import ProcessExecutor, SequentialExecutor  # standard library only
+
+    register("sequential", SequentialExecutor, description="one episode after the other, in this process")
+    register("process", ProcessExecutor, description="a pool of spawned worker processes (--workers N)")
+
+
 def _constant(value):
     def factory():
         return value
