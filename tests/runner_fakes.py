@@ -13,6 +13,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 import vladrivebench
+from vladrivebench.errors import ConfigError
 from vladrivebench.records import (
     Actor,
     Control,
@@ -107,7 +108,8 @@ class EchoModel:
     """States "stop" when a car is within 15 m, else "go"; its trajectory follows its own words.
 
     Failure switches for tests: ``fail_at`` = (seed, step) raises, ``nan_at`` returns NaN waypoints,
-    ``die_at`` kills the worker process (``os._exit``), ``sleep`` slows every step down.
+    ``die_at`` kills the worker process (``os._exit``), ``sleep`` slows every step down,
+    ``fail_once_file`` fails the first episode that finds the file missing (and creates it).
     """
 
     cot_format = CoTFormat("sentence")
@@ -115,9 +117,12 @@ class EchoModel:
 
     def __init__(self, cruise: float = 5.0, noise: float = 0.05, fail_at: list | None = None,
                  nan_at: list | None = None, die_at: list | None = None, sleep: float = 0.0,
-                 fail_on_build: bool = False):
+                 fail_on_build: bool = False, fail_once_file: str = ""):
         if fail_on_build:
             raise RuntimeError("weights not found")
+        if cruise < 0:
+            raise ConfigError(f"model 'echo': cruise must be ≥ 0, got {cruise}")
+        self.fail_once_file = fail_once_file
         self.cruise, self.noise, self.sleep = cruise, noise, sleep
         self.fail_at = tuple(fail_at) if fail_at else None
         self.nan_at = tuple(nan_at) if nan_at else None
@@ -126,6 +131,9 @@ class EchoModel:
 
     def reset(self, seed: int) -> None:
         self.seed = seed
+        if self.fail_once_file and not os.path.exists(self.fail_once_file):
+            open(self.fail_once_file, "w").close()
+            raise RuntimeError("transient failure")
 
     def generate_cot(self, obs: Observation, rng: np.random.Generator) -> CoT:
         gap = obs.ground_truth.distance_to_critical
@@ -207,3 +215,28 @@ SCENARIOS = (
     FakeScenario("long", length=60.0, max_time_s=8.0),
 )
 
+
+
+# -- worker functions for executor tests (module level: picklable by reference) ------------------------
+def square(job: int) -> tuple[int, int]:
+    return job, job * job
+
+
+def square_but_three_raises(job: int) -> tuple[int, int]:
+    if job == 3:
+        raise ValueError("three is unlucky")
+    return square(job)
+
+
+def square_but_three_dies(job: int) -> tuple[int, int]:
+    if job == 3:
+        os._exit(7)
+    return square(job)
+
+
+def component_identity(job) -> tuple[int, int]:
+    """(worker pid, identity of the model this worker built for ``job``): shows models are reused."""
+    from vladrivebench import sweep
+
+    registry = sweep._registry_for(job.registry)
+    return os.getpid(), id(sweep._component(registry, job.model))

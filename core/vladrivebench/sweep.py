@@ -136,9 +136,11 @@ class RegistrySpec:
 _WORKER_REGISTRIES: dict[str, Registry] = {}
 
 
-def _registry_for(spec: RegistrySpec | None) -> Registry:
+def _registry_for(spec: RegistrySpec | Registry | None) -> Registry:
     if spec is None:
         return get_registry()
+    if isinstance(spec, Registry):  # an in-process executor: the driver's own registry
+        return spec
     key = spec.key()
     if key not in _WORKER_REGISTRIES:
         _WORKER_REGISTRIES[key] = spec.build()
@@ -160,7 +162,7 @@ class EpisodeJob:
     config: Mapping[str, Any]
     versions: Mapping[str, str]
     log_images: bool = False
-    registry: RegistrySpec | None = None
+    registry: RegistrySpec | Registry | None = None
 
 
 @dataclass(frozen=True)
@@ -350,7 +352,7 @@ def run_sweep(config: RunConfig, out: Path | str, *, executor: Any, executor_inf
                 "executor": dict(executor_info or {})}
     prepare_out(out, manifest)
     in_process = bool(getattr(executor, "in_process", False))
-    jobs = make_jobs(config, out, versions, None if in_process else RegistrySpec.of(registry))
+    jobs = make_jobs(config, out, versions, registry if in_process else RegistrySpec.of(registry))
     failures = load_failures(out)
     todo, results = _plan(jobs, failures, retry_failed)
     summary = SweepSummary(out, jobs, results, failures, skipped=len(jobs) - len(todo))
@@ -426,7 +428,7 @@ def _failure_entry(job: EpisodeJob | None, outcome: EpisodeOutcome) -> dict[str,
 
 
 def make_jobs(config: RunConfig, out: Path, versions: Mapping[str, str],
-              registry: RegistrySpec | None) -> list[EpisodeJob]:
+              registry: RegistrySpec | Registry | None) -> list[EpisodeJob]:
     """Every episode of the sweep, scenario-major, seeds in order."""
     identity = config.to_json()
     jobs = []
