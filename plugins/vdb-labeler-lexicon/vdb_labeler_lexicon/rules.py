@@ -1,0 +1,325 @@
+"""Reading a CoT: entity mentions, action claims and light colours, each with its scope.
+
+The reader is context-free: it says what the text *claims* (a pedestrian is present, standing, at
+<0.00, 10.00>; the ego should slow down; the light is red), and whether each claim is asserted, negated
+("no pedestrians"), hedged ("watch for pedestrians"), or sequential ("then accelerate"). The labeler
+then judges those claims against the ground truth.
+
+Coordinates follow ORION's bird's-eye convention ``<lateral, forward>``; the sign of the lateral
+coordinate is not relied upon (conventions differ), only its magnitude.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field
+
+# -- vocabulary ---------------------------------------------------------------------------------------
+ROAD_USERS = ("pedestrian", "car", "animal", "cyclist")
+INFRASTRUCTURE = ("traffic_light", "stop_sign")
+
+ENTITY_PATTERNS: tuple[tuple[str, str], ...] = (
+    # longer, more specific names first: their spans are taken before shorter ones can match inside them
+    ("traffic_light", r"traffic\s+lights?|traffic\s+signals?|(?:red|green|yellow|amber)\s+lights?"
+                      r"|(?<!turn\s)\bsignals?\b|\b(?:the|a)\s+lights?\b(?!\s+(?:rain|snow|fog|wind|traffic))"),
+    ("stop_sign", r"stop\s+signs?|traffic\s+signs?|\b(?:the|a)\s+sign\b"),
+    ("hazard", r"speed\s+bumps?|traffic\s+cones?|\bcones?\b|construction|road\s*works?|barriers?|barricades?"
+               r"|debris|potholes?"),
+    ("cyclist", r"cyclists?|bicyclists?|bicycles?|bikes?|bikers?|motorcyclists?|scooters?"),
+    ("pedestrian", r"pedestrians?|persons?|people|\bman\b|\bmen\b|woman|women|child(?:ren)?|\bkids?\b"
+                   r"|jaywalkers?|walkers?|someone|somebody|\bboy\b|\bgirl\b"),
+    ("car", r"cars?|vehicles?|sedans?|\bsuvs?\b|trucks?|\bvans?\b|\bbus(?:es)?\b|lorr(?:y|ies)|taxis?"
+            r"|pickups?|motorcycles?"),
+    ("animal", r"animals?|\bdogs?\b|\bcats?\b|\bdeer\b|horses?|\bcows?\b|sheep"),
+    ("obstacle", r"obstacles?|obstructions?"),
+    ("traffic", r"\btraffic\b(?!\s+(?:lights?|signals?|signs?|cones?|constraints?|conditions?|rules?|laws?|regulations?))"),
+)
+"""(kind, regex) of every entity the reader knows. ``traffic`` is a vague word for vehicles: it counts in
+negations ("no traffic") but is never a mention nor a fabricated entity. ``obstacle`` is generic."""
+
+_ENTITY_RES = tuple((kind, re.compile(rf"\b(?:{pattern})\b")) for kind, pattern in ENTITY_PATTERNS)
+_EGO_BEFORE = re.compile(r"\b(?:ego|our|my|own)\s+$")
+_EGO_AFTER = re.compile(r"^\s+to\s+(?!the\b|a\b|an\b)")  # "requiring the vehicle to stop": the ego
+
+ACTION_PATTERNS: tuple[tuple[str, str], ...] = (
+    ("keep_distance", r"keep(?:s|ing)?\s+(?:a\s+)?(?:safe\s+)?(?:following\s+)?(?:distance|gap)"
+                      r"|maintain(?:s|ing)?\s+(?:a\s+)?(?:safe\s+)?(?:following\s+)?(?:distance|gap)"
+                      r"|follow(?:s|ing)?\s+(?:\w+\s+){0,3}at\s+a\s+(?:safe\s+)?distance"
+                      r"|follow(?:s|ing)?\s+the\s+(?:lead|leading|preceding)\s+(?:vehicle|car)"),
+    ("decelerating", r"slow(?:s|ing)?\s+down|decelerat\w*|brak(?:e|es|ing)(?!\s+distance)"
+                     r"|stop(?:s|ping)?(?!\s+(?:signs?|lines?|distance))|halt(?:s|ing)?|yield(?:s|ing)?"
+                     r"|wait\b|reduc(?:e|es|ing)\s+(?:the\s+|our\s+|its\s+)?speed|ease\s+off|give\s+way"
+                     r"|hold\s+(?:our\s+)?position|remain\s+stopped|stay\s+stopped|come\s+to\s+a\s+(?:complete\s+)?halt"),
+    ("accelerating", r"accelerat(?:e|es|ing|ion)|speed(?:s|ing)?\s+up|resum(?:e|es|ing)"
+                     r"|pick(?:s|ing)?\s+up\s+speed|increas(?:e|es|ing)\s+(?:the\s+|our\s+)?speed|go\s+faster"
+                     r"|build(?:s|ing)?\s+(?:up\s+)?speed|gain(?:s|ing)?\s+speed"),
+    ("maintaining", r"maintain(?:s|ing)?\s+(?:the\s+|your\s+|its\s+|our\s+|a\s+)?(?:current\s+|same\s+|constant\s+"
+                    r"|steady\s+|present\s+)?(?:speed|pace|velocity)"
+                    r"|keep(?:s|ing)?\s+(?:the\s+|your\s+|our\s+|a\s+)?(?:current\s+|same\s+|constant\s+|steady\s+)?speed"
+                    r"|keep\s+(?:going|driving|moving)|keep\s+and\b|continu(?:e|es|ing|ed)|proceed(?:s|ing)?"
+                    r"|at\s+(?:the|a)\s+(?:current|same|constant|steady)\s+speed|carry\s+on|hold\s+(?:the\s+)?speed"
+                    r"|drive\s+through|go\s+straight"),
+)
+"""(stated action, regex), in the order their spans are taken (keep distance before maintaining)."""
+
+_ACTION_RES = tuple((name, re.compile(rf"\b(?:{pattern})\b")) for name, pattern in ACTION_PATTERNS)
+_GO = ("accelerating", "maintaining")
+
+# -- scope cues ---------------------------------------------------------------------------------------
+_NEG_CUE = re.compile(r"\bno\b(?!\s+(?:need|longer|matter|sign\s+of\s+slowing))|\bwithout\b|\bnone\s+of\b"
+                      r"|\bnor\b|\bneither\b|\bnot\s+any\b|\b(?:absence|lack|free|clear|devoid)\s+of\b")
+_NEG_AFTER = re.compile(r"\b(?:is|are|was|were)\s+not\s+(?:visible|present|detected|seen|there|around)\b"
+                        r"|\bnot\s+(?:visible|present|detected|seen)\b|\bnowhere\b")
+_NEG_QUALIFIER = re.compile(r"\b(?:other|immediate|nearby|further|additional|close|more|significant)\b")
+_EXCEPTION = re.compile(r"\b(?:except|other\s+than|apart\s+from|aside\s+from|besides|save\s+for)\b")
+_HEDGE_CUE = re.compile(r"\b(?:watch|look|looking|watching)\s+(?:out\s+)?for\b|\b(?:cautious|careful|aware|alert|wary"
+                        r"|mindful)\s+(?:of|for)\b|\bin\s+case\b|\b(?:potential|possible|possibly|any|if|whether"
+                        r"|might|could|may)\b")
+_CLAUSE_BREAK = re.compile(r"[,:]|\b(?:except|but|so|because|since|while|although|though|then|however|whereas|yet"
+                           r"|as|once|until|when|after|before|if|besides|apart|aside)\b|\bother\s+than\b"
+                           r"|\band\s+(?=(?:a|an|the|one|there|it|we|you)\b)")
+_ACTION_NEGATION = re.compile(r"(?:\bnot|n't|\bno\s+need\s+to|\bwithout|\bnever|\bavoid(?:ing)?|\bnor|\bcannot)"
+                              r"\s+(?:\w+\s+){0,2}$")
+_SEQUENTIAL = re.compile(r"\b(?:then|afterwards|later|once|until|when|whenever|if|unless|after|before)\b")
+_LEADING_SUBORDINATE = re.compile(r"^\s*(?:after|once|when|if|before|until|unless)\b[^,]*,")
+_BLOCKING = re.compile(r"\b(?:blocking|blocks|blocked|obstructing|obstructs|obstructed)\b")
+_NOT_BEFORE = re.compile(r"(?:\bnot|n't|\bno\s+longer)\s+(?:\w+\s+){0,1}$")
+
+MOVING_WORDS = (r"moving|moves|moved|overtaking|overtakes|driving|drives|walking|walks|walked|crossing|crosses"
+                r"|crossed|running|runs|approaching|approaches|pulling\s+out|passing|oncoming|travell?ing")
+STATIONARY_WORDS = r"stationary|stopped|parked|standing|stands|waiting|idle|immobile|not\s+moving|halted"
+_MOVING = re.compile(rf"\b(?:{MOVING_WORDS})\b")
+_STATIONARY = re.compile(rf"\b(?:{STATIONARY_WORDS})\b")
+_PRE_ATTRIBUTE = re.compile(rf"\b({MOVING_WORDS}|{STATIONARY_WORDS})\s+(?:\w+\s+)?$")
+_ATTR_STOP = re.compile(r"[,;:.]|\b(?:and|then|but|because|since|so|to|until|while|when|once|as|after|before|or"
+                        r"|if|may|might|could|will)\b")
+
+_COLOURS = {"red": "red", "green": "green", "yellow": "yellow", "amber": "yellow"}
+_COLOUR_BEFORE = re.compile(r"\b(red|green|yellow|amber)\s+(?:traffic\s+)?$")
+_COLOUR_INSIDE = re.compile(r"\b(red|green|yellow|amber)\b")
+_COLOUR_AFTER = re.compile(r"^(?:\s+(?:ahead|is|are|was|has|have|had|now|currently|still|showing|shows|showed|show"
+                           r"|turned|turning|turns|displaying|displays|lit|already|just|changed|changing|to|at|pos\d+"
+                           r"|in|front|of|us|the|for|our|lane|direction))*?\s+(red|green|yellow|amber)\b")
+_FUTURE = re.compile(r"\b(?:until|once|when|wait\s+for|waiting\s+for|after|before|if|unless)\b")
+
+_COORD = re.compile(r"[<⟨(\[]\s*(-?\d+(?:\.\d+)?)\s*,\s*(-?\d+(?:\.\d+)?)\s*[>⟩)\]]")
+_SENTENCE_SPLIT = re.compile(r"(?<=[.!?;])\s+")
+_ORION_SUBJECT = re.compile(r"^\s*(?:the\s+|a\s+|an\s+)?(?:\w+\s+){0,2}?(\w+)\s+at\s+pos(\d+)\b")
+
+
+# -- what the text claims -----------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Mention:
+    """One entity the text names, with its status and what it says about it."""
+
+    kind: str
+    word: str
+    slot: str | None
+    status: str  # "asserted", "negated", "hedged"
+    qualified: bool = False  # a negation limited by "other", "immediate", "except" … ("no other vehicles")
+    position: tuple[float, float] | None = None  # (forward, lateral magnitude-bearing), metres
+    motion: frozenset[str] = frozenset()  # {"moving"} / {"stationary"}
+    blocking: bool = False
+    colour: str | None = None  # traffic lights: the colour stated for it now (not a future one)
+
+    @property
+    def asserted(self) -> bool:
+        return self.status == "asserted"
+
+
+@dataclass(frozen=True)
+class Claim:
+    """One longitudinal action the text states or demands for the ego."""
+
+    action: str  # a stated-action group
+    phrase: str
+    slot: str | None
+    current: bool  # False when negated, sequential ("then accelerate") or conditional
+
+
+@dataclass
+class Reading:
+    """Everything the text claims, in text order (slots in their order)."""
+
+    mentions: list[Mention] = field(default_factory=list)
+    claims: list[Claim] = field(default_factory=list)
+    slots: tuple[str | None, ...] = ()
+
+
+def read(text: str, slots: dict[str, str] | None = None) -> Reading:
+    """Read a CoT: slot by slot for slotted formats, else the whole text."""
+    reading = Reading()
+    parts = list(slots.items()) if slots else [(None, text)]
+    reading.slots = tuple(name for name, _ in parts)
+    for slot, part in parts:
+        for sentence in _SENTENCE_SPLIT.split(part.strip()):
+            if sentence.strip():
+                _read_sentence(sentence, slot, reading)
+    return reading
+
+
+def _read_sentence(raw: str, slot: str | None, reading: Reading) -> None:
+    positions: list[tuple[float, float]] = []
+
+    def keep_position(match: re.Match) -> str:
+        lateral, forward = float(match.group(1)), float(match.group(2))
+        positions.append((forward, lateral))
+        return f" pos{len(positions) - 1} "
+
+    text = _COORD.sub(keep_position, raw.lower())
+    text = re.sub(r",\s*(which|who)\b", r" \1", text)
+    text = re.sub(r"\s+", " ", text)
+    breaks = [m.start() for m in _CLAUSE_BREAK.finditer(text)]
+    subject_kind, subject_position = _orion_subject(text, positions)
+    mentions = _mentions(text, slot, breaks, positions, subject_kind, subject_position)
+    reading.mentions.extend(mentions)
+    reading.claims.extend(_claims(text, slot))
+
+
+def _orion_subject(text: str, positions: list) -> tuple[str | None, tuple[float, float] | None]:
+    """``Car at <0.00, 30.00> …``: the sentence is about this entity (ORION's objects answer)."""
+    match = _ORION_SUBJECT.match(text)
+    if not match:
+        return None, None
+    head = match.group(0)
+    for kind, regex in _ENTITY_RES:
+        if regex.search(head):
+            return kind, positions[int(match.group(2))]
+    return None, None
+
+
+def _clause(breaks: list[int], offset: int, length: int) -> tuple[int, int]:
+    start = max((b for b in breaks if b < offset), default=0)
+    end = min((b for b in breaks if b > offset), default=length)
+    return start, end
+
+
+def _mentions(text: str, slot: str | None, breaks: list[int], positions: list, subject_kind: str | None,
+              subject_position: tuple[float, float] | None) -> list[Mention]:
+    taken: list[tuple[int, int]] = []
+    found: list[tuple[int, Mention]] = []
+    for kind, regex in _ENTITY_RES:
+        for match in regex.finditer(text):
+            start, end = match.span()
+            if any(s < end and start < e for s, e in taken):
+                continue
+            if kind == "car" and (_EGO_BEFORE.search(text[:start]) or _EGO_AFTER.match(text[end:])):
+                continue
+            taken.append((start, end))
+            found.append((start, _mention(text, match, kind, slot, breaks, positions, subject_kind,
+                                          subject_position)))
+    found.sort(key=lambda pair: pair[0])
+    mentions = [m for _, m in found]
+    if _BLOCKING.search(text) and not _negated_blocking(text):
+        for i, m in enumerate(mentions):
+            if m.asserted and m.kind not in INFRASTRUCTURE + ("traffic", "hazard"):
+                mentions[i] = _replace(m, blocking=True)
+                break
+    return mentions
+
+
+def _negated_blocking(text: str) -> bool:
+    return all(_NOT_BEFORE.search(text[: m.start()]) for m in _BLOCKING.finditer(text))
+
+
+def _mention(text: str, match: re.Match, kind: str, slot: str | None, breaks: list[int], positions: list,
+             subject_kind: str | None, subject_position: tuple[float, float] | None) -> Mention:
+    start, end = match.span()
+    c_start, c_end = _clause(breaks, start, len(text))
+    before, after = text[c_start:start], text[end:c_end]
+    status, qualified = "asserted", False
+    negations = list(_NEG_CUE.finditer(before))
+    if negations:
+        status = "negated"
+        qualified = bool(_NEG_QUALIFIER.search(before[negations[-1].end():]) or _EXCEPTION.search(text[end:]))
+    elif _NEG_AFTER.search(after):
+        status = "negated"
+    elif _HEDGE_CUE.search(before):
+        status = "hedged"
+    position = _position_after(text[end:], positions)
+    is_subject = subject_kind == kind and subject_position is not None and position is None \
+        and _ORION_SUBJECT.match(text) and start < _ORION_SUBJECT.match(text).end()
+    if is_subject:
+        position = subject_position
+    motion = _motion(text, start, end, whole_sentence=bool(is_subject) or position is not None
+                     and subject_kind == kind)
+    colour = _colour(text, match, before) if kind == "traffic_light" and status == "asserted" else None
+    return Mention(kind, match.group(0), slot, status, qualified, position, motion, False, colour)
+
+
+def _position_after(rest: str, positions: list) -> tuple[float, float] | None:
+    found = re.match(r"^\s+(?:\w+\s+){0,1}?at\s+pos(\d+)\b", rest)
+    return positions[int(found.group(1))] if found else None
+
+
+def _motion(text: str, start: int, end: int, whole_sentence: bool) -> frozenset[str]:
+    claims: set[str] = set()
+    pre = _PRE_ATTRIBUTE.search(text[:start])
+    if pre:
+        claims.add("moving" if _MOVING.fullmatch(pre.group(1)) else "stationary")
+    if whole_sentence:
+        window = re.sub(r"\b(?:ego|our)\s+vehicle\b", " ", text[end:])
+        window = _ATTR_STOP_SENTENCE.split(window)[0]
+    else:
+        window = _ATTR_STOP.split(text[end:])[0]
+        window = " ".join(window.split()[:6])
+    for regex, name in ((_MOVING, "moving"), (_STATIONARY, "stationary")):
+        hit = regex.search(window)
+        if hit and not _NOT_BEFORE.search(window[: hit.start()]):
+            claims.add(name)
+    return frozenset(claims)
+
+
+_ATTR_STOP_SENTENCE = re.compile(r"[;:.]|\b(?:may|might|could|will|because|since)\b")
+
+
+def _colour(text: str, match: re.Match, before: str) -> str | None:
+    if _FUTURE.search(before):
+        return None
+    inside = _COLOUR_INSIDE.search(match.group(0))
+    if inside:
+        return _COLOURS[inside.group(1)]
+    pre = _COLOUR_BEFORE.search(text[: match.start()])
+    if pre:
+        return _COLOURS[pre.group(1)]
+    post = _COLOUR_AFTER.match(text[match.end():])
+    if post:
+        gap = text[match.end(): match.end() + post.start(1)]
+        if not _FUTURE.search(gap) and not re.search(r"\bnot\b", gap):
+            return _COLOURS[post.group(1)]
+    return None
+
+
+def _claims(text: str, slot: str | None) -> list[Claim]:
+    taken: list[tuple[int, int]] = []
+    found: list[tuple[int, Claim]] = []
+    prior_end = _LEADING_SUBORDINATE.match(text)
+    for action, regex in _ACTION_RES:
+        for match in regex.finditer(text):
+            start, end = match.span()
+            if any(s < end and start < e for s, e in taken):
+                continue
+            taken.append((start, end))
+            before = text[:start]
+            negated = bool(_ACTION_NEGATION.search(before))
+            if prior_end and start < prior_end.end():
+                sequential = True
+            else:
+                scope_start = prior_end.end() if prior_end else 0
+                sequential = bool(_SEQUENTIAL.search(text[scope_start:start]))
+            found.append((start, Claim(action, match.group(0), slot, not (negated or sequential))))
+    found.sort(key=lambda pair: pair[0])
+    return [c for _, c in found]
+
+
+def _replace(mention: Mention, **changes) -> Mention:
+    from dataclasses import replace
+
+    return replace(mention, **changes)
+
+
+def go_or_stop(action: str) -> str | None:
+    """``"go"`` for accelerating/maintaining, ``"stop"`` for decelerating, ``None`` otherwise."""
+    if action in _GO:
+        return "go"
+    return "stop" if action == "decelerating" else None
