@@ -94,7 +94,7 @@ class LexiconLabeler:
             return None, None
         critical = context.get("critical_position")
         for mention in reading.mentions:
-            if not mention.asserted or mention.kind != kind:
+            if not mention.named or mention.kind != kind:
                 continue
             if mention.position is not None and critical is not None and kind in rules.ROAD_USERS:
                 if not _near(mention.position, critical):

@@ -40,11 +40,14 @@ negations ("no traffic") but is never a mention nor a fabricated entity. ``obsta
 _ENTITY_RES = tuple((kind, re.compile(rf"\b(?:{pattern})\b")) for kind, pattern in ENTITY_PATTERNS)
 _EGO_BEFORE = re.compile(r"\b(?:ego|our|my|own)\s+$")
 _EGO_AFTER = re.compile(r"^\s+to\s+(?!the\b|a\b|an\b)")  # "requiring the vehicle to stop": the ego
+_BARE_ARTICLE = re.compile(r"\b(?:the|ego)\s+$")  # ... but "the crossing vehicle to pass" is another road user
+_EGO_FRONT = re.compile(r"\bin\s+front\s+of\s+(?:the\s+)?$")  # "standing in front of the car": the ego
+_LOCATED = re.compile(r"^\s+(?:ahead|in|on|at|parked|stopped|stationary|that|which|is|pos\d+)\b")
 
 ACTION_PATTERNS: tuple[tuple[str, str], ...] = (
     ("keep_distance", r"keep(?:s|ing)?\s+(?:a\s+)?(?:safe\s+)?(?:following\s+)?(?:distance|gap)"
                       r"|maintain(?:s|ing)?\s+(?:a\s+)?(?:safe\s+)?(?:following\s+)?(?:distance|gap)"
-                      r"|follow(?:s|ing)?\s+(?:\w+\s+){0,3}at\s+a\s+(?:safe\s+)?distance"
+                      r"|follow(?:s|ing)?\s+(?:\w+\s+){0,5}at\s+a\s+(?:safe\s+)?distance"
                       r"|follow(?:s|ing)?\s+the\s+(?:lead|leading|preceding)\s+(?:vehicle|car)"),
     ("decelerating", r"slow(?:s|ing)?\s+down|decelerat\w*|brak(?:e|es|ing)(?!\s+distance)"
                      r"|stop(?:s|ping)?(?!\s+(?:signs?|lines?|distance))|halt(?:s|ing)?|yield(?:s|ing)?"
@@ -56,9 +59,10 @@ ACTION_PATTERNS: tuple[tuple[str, str], ...] = (
     ("maintaining", r"maintain(?:s|ing)?\s+(?:the\s+|your\s+|its\s+|our\s+|a\s+)?(?:current\s+|same\s+|constant\s+"
                     r"|steady\s+|present\s+)?(?:speed|pace|velocity)"
                     r"|keep(?:s|ing)?\s+(?:the\s+|your\s+|our\s+|a\s+)?(?:current\s+|same\s+|constant\s+|steady\s+)?speed"
-                    r"|keep\s+(?:going|driving|moving)|keep\s+and\b|continu(?:e|es|ing|ed)|proceed(?:s|ing)?"
+                    r"|keep\s+(?:going|driving|moving|cruising|rolling)|keep\s+and\b|continu(?:e|es|ing|ed)"
+                    r"|proceed(?:s|ing)?|cruis(?:e|ing)\s+(?:on|along)|go(?:ing)?\s+(?:straight|through|ahead)"
                     r"|at\s+(?:the|a)\s+(?:current|same|constant|steady)\s+speed|carry\s+on|hold\s+(?:the\s+)?speed"
-                    r"|drive\s+through|go\s+straight"),
+                    r"|drive\s+through"),
 )
 """(stated action, regex), in the order their spans are taken (keep distance before maintaining)."""
 
@@ -72,6 +76,8 @@ _NEG_AFTER = re.compile(r"\b(?:is|are|was|were)\s+not\s+(?:visible|present|detec
                         r"|\bnot\s+(?:visible|present|detected|seen)\b|\bnowhere\b")
 _NEG_QUALIFIER = re.compile(r"\b(?:other|immediate|nearby|further|additional|close|more|significant)\b")
 _EXCEPTION = re.compile(r"\b(?:except|other\s+than|apart\s+from|aside\s+from|besides|save\s+for)\b")
+_TENTATIVE_CUE = re.compile(r"\b(?:might|may|could)\s+(?:also\s+)?be\b|\bpossibly\b|\bprobably\b|\blikely\b"
+                            r"|\b(?:appears|seems)\s+to\s+be\b|\bwhat\s+(?:looks|appears)\s+like\b")
 _HEDGE_CUE = re.compile(r"\b(?:watch|look|looking|watching)\s+(?:out\s+)?for\b|\b(?:cautious|careful|aware|alert|wary"
                         r"|mindful)\s+(?:of|for)\b|\bin\s+case\b|\b(?:potential|possible|possibly|any|if|whether"
                         r"|might|could|may)\b")
@@ -115,7 +121,7 @@ class Mention:
     kind: str
     word: str
     slot: str | None
-    status: str  # "asserted", "negated", "hedged"
+    status: str  # "asserted", "tentative" ("might be a pedestrian"), "negated", "hedged" ("watch for …")
     qualified: bool = False  # a negation limited by "other", "immediate", "except" … ("no other vehicles")
     position: tuple[float, float] | None = None  # (forward, lateral magnitude-bearing), metres
     motion: frozenset[str] = frozenset()  # {"moving"} / {"stationary"}
@@ -125,6 +131,11 @@ class Mention:
     @property
     def asserted(self) -> bool:
         return self.status == "asserted"
+
+    @property
+    def named(self) -> bool:
+        """Named as (possibly) present: asserted or tentative — what counts as a mention."""
+        return self.status in ("asserted", "tentative")
 
 
 @dataclass(frozen=True)
@@ -203,7 +214,7 @@ def _mentions(text: str, slot: str | None, breaks: list[int], positions: list, s
             start, end = match.span()
             if any(s < end and start < e for s, e in taken):
                 continue
-            if kind == "car" and (_EGO_BEFORE.search(text[:start]) or _EGO_AFTER.match(text[end:])):
+            if kind == "car" and _is_ego(text, start, end):
                 continue
             taken.append((start, end))
             found.append((start, _mention(text, match, kind, slot, breaks, positions, subject_kind,
@@ -216,6 +227,16 @@ def _mentions(text: str, slot: str | None, breaks: list[int], positions: list, s
                 mentions[i] = _replace(m, blocking=True)
                 break
     return mentions
+
+
+def _is_ego(text: str, start: int, end: int) -> bool:
+    """``ego vehicle``, ``the vehicle to yield``, ``in front of the car``: the text speaks of the ego."""
+    before, after = text[:start], text[end:]
+    if _EGO_BEFORE.search(before):
+        return True
+    if _EGO_AFTER.match(after) and _BARE_ARTICLE.search(before):
+        return True
+    return bool(_EGO_FRONT.search(before)) and not _LOCATED.match(after)
 
 
 def _negated_blocking(text: str) -> bool:
@@ -234,6 +255,8 @@ def _mention(text: str, match: re.Match, kind: str, slot: str | None, breaks: li
         qualified = bool(_NEG_QUALIFIER.search(before[negations[-1].end():]) or _EXCEPTION.search(text[end:]))
     elif _NEG_AFTER.search(after):
         status = "negated"
+    elif _TENTATIVE_CUE.search(before):
+        status = "tentative"
     elif _HEDGE_CUE.search(before):
         status = "hedged"
     position = _position_after(text[end:], positions)
