@@ -8,7 +8,6 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from transformers import LlamaConfig, LlamaForCausalLM
-
 from vdb_model_neural import toolkit
 from vladrivebench.errors import ConfigError, VdbError
 

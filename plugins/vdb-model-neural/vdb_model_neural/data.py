@@ -1,0 +1,170 @@
+"""Training data from the kinematic simulator: the expert drives randomised variants of the scenario suite
+closed-loop (through the benchmark's own runner and controllers), and every visited step becomes a sample.
+
+Variants randomise what the families leave open: where the critical actor stands (distance, lateral
+offset: kerbside or in the lane), the light colour, the scenery, the ego's initial speed, and the speed
+the driving expert cruises at (so the models see states off the expert's exact path). The *labels* of a
+sample are always the expert's decision for the visited state, so a model learns to recover.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+
+import numpy as np
+from vladrivebench.records import CoT, CoTFormat, Observation, Trajectory, TrajectorySpec
+
+from .common import IMAGE_HEIGHT, IMAGE_WIDTH, image_batch
+from .expert import ExpertDriver, counterfactual, rollout_controls, sentence_cot, slot_cot
+from .kv_model import rollout
+
+TRAIN_FAMILIES = ("pedestrian", "stopped_car", "traffic_light", "stop_sign", "baseline", "intervention")
+SCENERIES = ("plain", "suburban", "urban")
+
+
+@dataclass
+class Dataset:
+    """Arrays of samples (N of each): camera images at the encoder's size, ego speed and command, the
+    expert's sentence CoT, three answers, controls (acceleration, curvature) and waypoints, and one
+    counterfactual (sentence + controls) per sample."""
+
+    images: np.ndarray  # (N, H, W, 3) uint8
+    speeds: np.ndarray  # (N,)
+    commands: list[str]
+    sentences: list[str]
+    slots: list[dict[str, str]]
+    controls: np.ndarray  # (N, 30, 2)
+    waypoints: np.ndarray  # (N, 30, 2)
+    cf_sentences: list[str]
+    cf_controls: np.ndarray  # (N, 30, 2)
+    decisions: list[str]
+    scenario_ids: list[str]
+
+    def __len__(self) -> int:
+        return len(self.speeds)
+
+    def corpus(self) -> list[str]:
+        """Every text of the dataset (for training the tokenizer)."""
+        texts = list(self.sentences) + list(self.cf_sentences)
+        for slots in self.slots:
+            texts.extend(slots.values())
+        return texts
+
+
+class ExpertModel:
+    """The expert as a VLAModel, so the benchmark's runner and controllers drive it like any model.
+
+    It reads the privileged ground truth (perfect perception). ``exec_cruise`` is the speed it actually
+    cruises at; ``record`` is called with every step's sample before the action is returned.
+    """
+
+    cot_format = CoTFormat("sentence")
+    trajectory_spec = TrajectorySpec(3.0, 10.0)
+
+    def __init__(self, rng: np.random.Generator, exec_cruise: float, record: Callable[[dict], None]):
+        self.rng, self.exec_cruise, self.record = rng, exec_cruise, record
+        self.driver = ExpertDriver()
+
+    def reset(self, seed: int) -> None:
+        self.driver.reset()
+
+    def generate_cot(self, obs: Observation, rng: np.random.Generator) -> CoT:
+        decision = self.driver.decide(obs)
+        controls = self.driver.plan(obs, decision)
+        cf_action, cf_text, cf_controls = counterfactual(obs, decision, self.driver.cruise_speed, self.rng)
+        sample = {
+            "image": obs.image, "speed": obs.ego.speed, "command": obs.command,
+            "sentence": sentence_cot(decision, obs.ego.speed, self.rng),
+            "slots": slot_cot(obs, decision, self.rng), "controls": controls,
+            "cf_sentence": cf_text, "cf_controls": cf_controls, "decision": decision.action,
+            "scenario_id": obs.scenario_id,
+        }
+        self.record(sample)
+        executed = rollout_controls(obs.ego.speed, obs.ground_truth, decision.stop_distance, self.exec_cruise)
+        return CoT(text=sample["sentence"], state=executed)
+
+    def splice_cot(self, obs, text, rng):  # pragma: no cover - the expert is never intervened on
+        raise NotImplementedError("the expert driver does not take spliced CoTs")
+
+    def decode_action(self, obs: Observation, cot: CoT, rng: np.random.Generator) -> Trajectory:
+        return rollout(cot.state[:, 0], cot.state[:, 1], obs.ego.speed, 0.1)
+
+    def state_digest(self, cot: CoT) -> str:  # pragma: no cover
+        return ""
+
+
+def variant(scenario, rng: np.random.Generator):
+    """A randomised variant of a suite scenario (same family and layout, different details)."""
+    road = dataclasses.replace(scenario.road, scenery=str(rng.choice(SCENERIES)))
+    ego = dataclasses.replace(scenario.ego, speed=float(rng.choice([0.0, 0.0, rng.uniform(2.0, 8.0)])))
+    actors = []
+    for actor in scenario.actors:
+        changes = {"s": max(15.0, actor.s + float(rng.uniform(-15.0, 15.0)))}
+        if actor.motion == "static" and actor.kind in ("pedestrian", "animal"):
+            changes["offset"] = float(rng.choice([actor.offset, rng.uniform(-1.2, 1.2), rng.uniform(1.8, 3.0)]))
+        if actor.motion == "static" and actor.kind == "car" and abs(actor.offset) < 1.0:
+            changes["offset"] = actor.offset + float(rng.uniform(-0.4, 0.4))
+        if actor.trigger_distance is not None:
+            changes["trigger_distance"] = max(5.0, actor.trigger_distance + float(rng.uniform(-5.0, 5.0)))
+        actors.append(dataclasses.replace(actor, **changes))
+    light = scenario.light
+    if light is not None:
+        light = dataclasses.replace(light, state=str(rng.choice(["red", "red", "green", "green", "yellow"])))
+    return dataclasses.replace(scenario, road=road, ego=ego, actors=tuple(actors), light=light,
+                               id=f"{scenario.id}~v{int(rng.integers(1 << 30))}")
+
+
+def generate(seed: int, episodes: int, every: int = 2, scenarios: Iterable | None = None,
+             progress: Callable[[str], None] | None = None, max_time_s: float = 22.0) -> Dataset:
+    """Drive ``episodes`` randomised episodes with the expert and keep every ``every``-th step."""
+    from vladrivebench.controllers import MPCController, PIDController
+    from vladrivebench.plugins import get_registry
+    from vladrivebench.runner import run_episode
+    from vladrivebench.scenarios import load_suite
+
+    rng = np.random.default_rng([seed, 0xDA7A])
+    base = list(scenarios) if scenarios is not None else [
+        s for s in load_suite().values() if s.family in TRAIN_FAMILIES]
+    if not base:
+        raise RuntimeError("no scenarios to train on: the scenario suite is empty")
+    simulator = get_registry().create("simulator", "kinematic", {"width": IMAGE_WIDTH, "height": IMAGE_HEIGHT})
+    rows: list[dict] = []
+    started = time.perf_counter()
+    for episode in range(episodes):
+        scenario = variant(base[episode % len(base)], rng)
+        scenario = dataclasses.replace(scenario, max_time_s=min(scenario.max_time_s, max_time_s))
+        kept: list[dict] = []
+        offset = int(rng.integers(every))
+
+        def record(sample: dict, kept=kept) -> None:
+            kept.append(sample)
+
+        expert = ExpertModel(rng, float(rng.uniform(5.5, 9.5)), record)
+        controller = MPCController() if episode % 2 else PIDController()
+        run_episode(expert, simulator, controller, scenario, int(rng.integers(1 << 30)))
+        rows.extend(kept[offset::every])
+        if progress and (episode + 1) % 10 == 0:
+            progress(f"  {episode + 1}/{episodes} episodes, {len(rows)} samples, "
+                     f"{time.perf_counter() - started:.0f} s")
+    simulator.close()
+    return _to_dataset(rows)
+
+
+def _to_dataset(rows: list[dict]) -> Dataset:
+    images = image_batch([r["image"] for r in rows]) if rows else None
+    images_u8 = (images.permute(0, 2, 3, 1).numpy() * 255.0 + 0.5).astype(np.uint8)
+    controls = np.stack([r["controls"] for r in rows])
+    speeds = np.array([r["speed"] for r in rows], dtype=np.float64)
+    waypoints = np.stack([
+        rollout(c[:, 0], c[:, 1], v, 0.1).xy for c, v in zip(controls, speeds, strict=True)
+    ])
+    return Dataset(
+        images=images_u8, speeds=speeds, commands=[r["command"] for r in rows],
+        sentences=[r["sentence"] for r in rows], slots=[r["slots"] for r in rows], controls=controls,
+        waypoints=waypoints, cf_sentences=[r["cf_sentence"] for r in rows],
+        cf_controls=np.stack([r["cf_controls"] for r in rows]), decisions=[r["decision"] for r in rows],
+        scenario_ids=[r["scenario_id"] for r in rows],
+    )

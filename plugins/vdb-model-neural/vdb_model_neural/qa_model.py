@@ -1,0 +1,186 @@
+"""``qa``: an ORION-like VLA — three QA rounds (scene; critical objects with BEV coordinates; decision)
+appended to the context after the vision tokens, then a planning token whose final hidden state feeds a
+planner that outputs waypoints over 3 s.
+
+Each round feeds its question (one prefill pass, identical for generation and splicing) and then the
+answer between ``<a>`` and ``</a>``; splicing replaces the answers (intercepting the rounds, as the paper
+did for ORION). The planner reads only the planning token's hidden state, so :meth:`QAModel.state_digest`
+hashes that vector together with the cache.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import nn
+from vladrivebench.errors import ConfigError
+from vladrivebench.records import CoT, CoTFormat, Observation, Trajectory, TrajectorySpec
+
+from . import toolkit
+from .common import (
+    ModelConfig,
+    TextCodec,
+    VisionEncoder,
+    configure_torch,
+    ego_features,
+    image_batch,
+    load_bundle,
+    load_state,
+)
+from .kv_model import _observation_key
+
+SLOTS = ("scene", "objects", "decision")
+QUESTIONS = {
+    "scene": "Q: Describe the driving scene.",
+    "objects": "Q: Which objects matter, and where are they?",
+    "decision": "Q: What should the ego vehicle do?",
+}
+STEP_SCALE = 0.5  # metres per unit of the planner's per-step output
+
+
+class QANetwork(nn.Module):
+    """Vision encoder + Llama decoder (built from a config) + planner on the planning token."""
+
+    def __init__(self, config: ModelConfig):
+        super().__init__()
+        from transformers import LlamaForCausalLM
+
+        self.config = config
+        self.encoder = VisionEncoder(config.hidden)
+        self.lm = LlamaForCausalLM(config.llama_config())
+        width = config.head_width * 4
+        self.planner = nn.Sequential(
+            nn.LayerNorm(config.hidden), nn.Linear(config.hidden, width), nn.GELU(),
+            nn.Linear(width, width), nn.GELU(), nn.Linear(width, config.horizon_steps * 2),
+        )
+
+    def prefix_embeddings(self, images: torch.Tensor, ego: torch.Tensor) -> torch.Tensor:
+        return self.encoder(images, ego)
+
+    def plan(self, hidden: torch.Tensor) -> torch.Tensor:
+        """Planning-token hidden states ``(B, hidden)`` → ego-frame waypoints ``(B, T, 2)`` in metres."""
+        steps = self.planner(hidden).reshape(hidden.shape[0], self.config.horizon_steps, 2)
+        return torch.cumsum(steps * STEP_SCALE, dim=1)
+
+
+@dataclass
+class QAState:
+    """What a ``qa`` CoT carries: the decoder state after the planning token and each slot's token ids."""
+
+    decoder: toolkit.DecoderState
+    token_ids: dict[str, tuple[int, ...]]
+
+
+class QAModel:
+    """The ``qa`` reference VLA (VLAModel protocol). Options: ``splice_mode``, ``weights_dir``, ``threads``."""
+
+    name = "qa"
+
+    def __init__(self, splice_mode: str = "sequential", weights_dir: str | None = None, threads: int = 1):
+        if splice_mode not in toolkit.SPLICE_MODES:
+            raise ConfigError(f"model 'qa' option splice_mode={splice_mode!r} is not known (expected one of: "
+                              f"{', '.join(toolkit.SPLICE_MODES)})")
+        configure_torch(threads)
+        directory = Path(weights_dir) if weights_dir else None
+        config, codec, tensors = load_bundle(self.name, directory)
+        network = QANetwork(config)
+        load_state(self.name, network, tensors, directory)
+        self._setup(network.eval(), codec, splice_mode)
+
+    @classmethod
+    def from_network(cls, network: QANetwork, codec: TextCodec, splice_mode: str = "sequential") -> QAModel:
+        model = cls.__new__(cls)
+        model._setup(network.eval(), codec, splice_mode)
+        return model
+
+    def _setup(self, network: QANetwork, codec: TextCodec, splice_mode: str) -> None:
+        self.network, self.codec, self.splice_mode = network, codec, splice_mode
+        self.config = network.config
+        self.questions = {slot: codec.encode(QUESTIONS[slot]) for slot in SLOTS}
+        fixed = network.encoder.n_tokens + sum(len(q) + 2 for q in self.questions.values()) + 1
+        self.cot_format = CoTFormat("slots", slots=SLOTS, max_tokens=self.config.context - fixed)
+        self.trajectory_spec = TrajectorySpec(self.config.horizon_steps / self.config.rate_hz, self.config.rate_hz)
+        self._prefix_key: tuple | None = None
+        self._prefix: toolkit.DecoderState | None = None
+
+    # -- protocol ------------------------------------------------------------------------------------
+    def reset(self, seed: int) -> None:
+        self._prefix_key, self._prefix = None, None
+
+    def generate_cot(self, obs: Observation, rng: np.random.Generator) -> CoT:
+        """Three greedy QA rounds, then the planning token."""
+        ids, lm = self.codec.ids, self.network.lm
+        state = self.prefix_state(obs)
+        slots, token_ids = {}, {}
+        for slot in SLOTS:
+            state = toolkit.feed_tokens(lm, state, self.questions[slot], mode="prefill")
+            tokens, state = toolkit.generate_between_markers(lm, state, ids["<a>"], ids["</a>"],
+                                                             self.config.max_cot_tokens, banned=self.codec.special_ids)
+            slots[slot], token_ids[slot] = self.codec.decode(tokens), tuple(tokens)
+        state = toolkit.feed_token(lm, state, ids["<plan>"])
+        return CoT(text=CoT.join_slots(slots), slots=slots, state=QAState(state, token_ids))
+
+    def splice_cot(self, obs: Observation, text: str | dict[str, str], rng: np.random.Generator) -> CoT:
+        """Replace the three answers with ``text`` (slot → text), then the planning token."""
+        if isinstance(text, str) or set(text) != set(SLOTS):
+            got = "one text" if isinstance(text, str) else f"slots {', '.join(text) or 'none'}"
+            raise ConfigError(f"model 'qa' takes slots {', '.join(SLOTS)}; the splice gave {got}")
+        ids, lm = self.codec.ids, self.network.lm
+        state = self.prefix_state(obs)
+        token_ids = {}
+        for slot in SLOTS:
+            state = toolkit.feed_tokens(lm, state, self.questions[slot], mode="prefill")
+            tokens = self.codec.encode(text[slot])
+            remaining = self.config.context - state.length - 2 - self._after(slot)
+            if len(tokens) > remaining:
+                raise toolkit.SpliceTooLongError(
+                    f"model 'qa' splice text for slot {slot!r} is {len(tokens)} tokens; with the vision "
+                    f"prefix, questions and earlier answers the context of {self.config.context} positions "
+                    f"leaves room for at most {max(remaining, 0)} tokens")
+            state = toolkit.splice_tokens(lm, state, tokens, ids["<a>"], ids["</a>"], mode=self.splice_mode,
+                                          what=f"model 'qa' splice text for slot {slot!r}")
+            token_ids[slot] = tuple(tokens)
+        state = toolkit.feed_token(lm, state, ids["<plan>"])
+        slots = {slot: text[slot] for slot in SLOTS}
+        return CoT(text=CoT.join_slots(slots), slots=slots, state=QAState(state, token_ids), spliced=True)
+
+    def decode_action(self, obs: Observation, cot: CoT, rng: np.random.Generator) -> Trajectory:
+        """Waypoints from the planning token's hidden state (deterministic: ``rng`` is not used)."""
+        state = self._state_of(obs, cot)
+        with torch.no_grad():
+            xy = self.network.plan(state.decoder.last_hidden)[0].numpy().astype(np.float64)
+        times = np.arange(1, self.config.horizon_steps + 1) / self.config.rate_hz
+        return Trajectory(times=times, xy=xy)
+
+    def state_digest(self, cot: CoT) -> str:
+        """SHA-256 of the cache and of the planning token's hidden state (the planner's input)."""
+        if not isinstance(cot.state, QAState):
+            raise ConfigError("this CoT was not produced by model 'qa' (no decoder state to digest)")
+        return toolkit.kv_digest(cot.state.decoder, extra=[cot.state.decoder.last_hidden])
+
+    # -- extras --------------------------------------------------------------------------------------
+    def count_tokens(self, text: str) -> int:
+        return len(self.codec.encode(text))
+
+    @torch.no_grad()
+    def prefix_state(self, obs: Observation) -> toolkit.DecoderState:
+        key = _observation_key(obs)
+        if key != self._prefix_key:
+            embeds = self.network.prefix_embeddings(image_batch([obs.image]),
+                                                    ego_features([obs.ego.speed], [obs.command]))
+            self._prefix = toolkit.encode_prefix(self.network.lm, embeds)
+            self._prefix_key = key
+        return toolkit.fork(self._prefix)
+
+    def _after(self, slot: str) -> int:
+        """Positions still needed after ``slot``'s answer: later questions, their markers, the plan token."""
+        later = SLOTS[SLOTS.index(slot) + 1 :]
+        return sum(len(self.questions[s]) + 2 for s in later) + 1
+
+    def _state_of(self, obs: Observation, cot: CoT) -> QAState:
+        if isinstance(cot.state, QAState):
+            return cot.state
+        return self.splice_cot(obs, cot.slots, np.random.default_rng(0)).state

@@ -1,0 +1,230 @@
+"""Train the reference models from a seed: ``python -m vdb_model_neural.train --model kv --seed 0``
+(or ``vdb train-neural --model both --seed 0``).
+
+1. The expert drives randomised variants of the scenario suite in the kinematic simulator (:mod:`.data`).
+2. A byte-level BPE tokenizer is trained on the model's CoT corpus with ``tokenizers``.
+3. The network (vision encoder + ``LlamaForCausalLM`` built from a config + head) is trained with AdamW:
+   * ``kv``: next-token loss on the expert's sentence + flow-matching loss on the expert's controls, and on a
+     share of rows the sentence is replaced by a *counterfactual* (opposite decision) whose target follows
+     it (no next-token loss there) — so the action depends on the CoT (Alpamayo-like coupling);
+   * ``qa``: next-token loss on the three answers + planner loss on the waypoints, and on a share of rows
+     the answers are swapped with another sample's (coherent but wrong) while the planner target stays the
+     true one — so the planner relies on vision and not on what the CoT says (ORION-like).
+4. Weights (safetensors), config and tokenizer are written to ``weights/`` (or ``--out``).
+
+Everything random derives from the seed; the wall time of each stage is printed.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+
+import click
+
+DEFAULTS = {
+    "kv": {"steps": 2400, "batch": 48, "lr": 2e-3, "counterfactual_share": 0.4, "vocab": 640},
+    "qa": {"steps": 2000, "batch": 32, "lr": 2e-3, "mismatch_share": 0.5, "vocab": 768},
+}
+
+
+def _log(message: str) -> None:
+    print(message, file=sys.stderr, flush=True)
+
+
+def _schedule(step: int, total: int, lr: float) -> float:
+    import math
+
+    warm = max(1, total // 20)
+    if step < warm:
+        return lr * (step + 1) / warm
+    return lr * 0.5 * (1 + math.cos(math.pi * (step - warm) / max(1, total - warm)))
+
+
+def train_kv(dataset, seed: int, steps: int | None = None, threads: int = 2, log=_log):
+    """Train the ``kv`` network on ``dataset``; returns ``(network, codec, config)``."""
+    import numpy as np
+    import torch
+    from torch.nn import functional as F
+    from transformers import DynamicCache
+
+    from .common import ModelConfig, TextCodec, configure_torch, ego_features
+    from .kv_model import KVNetwork, normalise_controls
+
+    settings = dict(DEFAULTS["kv"], steps=steps or DEFAULTS["kv"]["steps"])
+    configure_torch(threads)
+    torch.manual_seed(seed)
+    rng = np.random.default_rng([seed, 0x4B56])
+    codec = TextCodec.train(dataset.sentences + dataset.cf_sentences, settings["vocab"])
+    config = ModelConfig(kind="kv", vocab_size=codec.vocab_size, context=128, max_cot_tokens=40,
+                         training={"seed": seed, **settings, "samples": len(dataset)})
+    network = KVNetwork(config)
+    ids = codec.ids
+    true_ids = [[ids["<cot>"], *codec.encode(t), ids["</cot>"]] for t in dataset.sentences]
+    cf_ids = [[ids["<cot>"], *codec.encode(t), ids["</cot>"]] for t in dataset.cf_sentences]
+    targets = torch.tensor(normalise_controls(dataset.controls), dtype=torch.float32)
+    cf_targets = torch.tensor(normalise_controls(dataset.cf_controls), dtype=torch.float32)
+    ego = ego_features(dataset.speeds, dataset.commands)
+    optimiser = torch.optim.AdamW(network.parameters(), lr=settings["lr"], weight_decay=0.01)
+    network.train()
+    started = time.perf_counter()
+    for step in range(settings["steps"]):
+        rows = rng.integers(0, len(dataset), settings["batch"])
+        counterfactual = rng.random(len(rows)) < settings["counterfactual_share"]
+        seqs = [cf_ids[r] if c else true_ids[r] for r, c in zip(rows, counterfactual, strict=True)]
+        token_ids, real = _pad(seqs, ids["<pad>"])
+        images = torch.from_numpy(dataset.images[rows]).permute(0, 3, 1, 2).float() / 255.0
+        prefix = network.prefix_embeddings(images, ego[rows])
+        embeds = torch.cat([prefix, network.lm.get_input_embeddings()(token_ids)], dim=1)
+        mask = torch.cat([torch.ones(len(rows), prefix.shape[1], dtype=torch.bool), real], dim=1)
+        out = network.lm(inputs_embeds=embeds, attention_mask=mask.long(), past_key_values=DynamicCache(),
+                         use_cache=True)
+        logits = out.logits[:, prefix.shape[1] : -1]
+        lm_mask = real[:, 1:] & torch.from_numpy(~counterfactual)[:, None]
+        lm_loss = F.cross_entropy(logits[lm_mask], token_ids[:, 1:][lm_mask])
+        x1 = torch.where(torch.from_numpy(counterfactual)[:, None, None], cf_targets[rows], targets[rows])
+        x0 = torch.randn_like(x1)
+        t = torch.sigmoid(torch.randn(len(rows)))  # logit-normal flow times
+        xt = (1 - t)[:, None, None] * x0 + t[:, None, None] * x1
+        kv = [(layer.keys, layer.values) for layer in out.past_key_values.layers]
+        velocity = network.head(xt, t, kv, mask)
+        flow_loss = F.mse_loss(velocity, x1 - x0)
+        loss = lm_loss + flow_loss
+        _update(optimiser, network, loss, _schedule(step, settings["steps"], settings["lr"]))
+        if step % 200 == 0 or step == settings["steps"] - 1:
+            log(f"  kv step {step:5d}  lm {lm_loss.item():.3f}  flow {flow_loss.item():.3f}  "
+                f"{time.perf_counter() - started:.0f} s")
+    return network.eval(), codec, config
+
+
+def train_qa(dataset, seed: int, steps: int | None = None, threads: int = 2, log=_log):
+    """Train the ``qa`` network on ``dataset``; returns ``(network, codec, config)``."""
+    import numpy as np
+    import torch
+    from torch.nn import functional as F
+
+    from .common import ModelConfig, TextCodec, configure_torch, ego_features
+    from .qa_model import QUESTIONS, SLOTS, QANetwork
+
+    settings = dict(DEFAULTS["qa"], steps=steps or DEFAULTS["qa"]["steps"])
+    configure_torch(threads)
+    torch.manual_seed(seed)
+    rng = np.random.default_rng([seed, 0x5141])
+    corpus = [s[slot] for s in dataset.slots for slot in SLOTS] + list(QUESTIONS.values())
+    codec = TextCodec.train(corpus, settings["vocab"])
+    config = ModelConfig(kind="qa", vocab_size=codec.vocab_size, context=640, max_cot_tokens=48,
+                         training={"seed": seed, **settings, "samples": len(dataset)})
+    network = QANetwork(config)
+    ids = codec.ids
+    questions = {slot: codec.encode(QUESTIONS[slot]) for slot in SLOTS}
+    answers = [{slot: codec.encode(s[slot]) for slot in SLOTS} for s in dataset.slots]
+    waypoints = torch.tensor(dataset.waypoints, dtype=torch.float32)
+    ego = ego_features(dataset.speeds, dataset.commands)
+    optimiser = torch.optim.AdamW(network.parameters(), lr=settings["lr"], weight_decay=0.01)
+    network.train()
+    started = time.perf_counter()
+    for step in range(settings["steps"]):
+        rows = rng.integers(0, len(dataset), settings["batch"])
+        mismatched = rng.random(len(rows)) < settings["mismatch_share"]
+        donors = np.where(mismatched, rng.integers(0, len(dataset), len(rows)), rows)
+        seqs, supervised = [], []
+        for donor in donors:
+            seq, sup = [], []
+            for slot in SLOTS:
+                seq += questions[slot]
+                sup += [False] * len(questions[slot])
+                answer = [ids["<a>"], *answers[donor][slot], ids["</a>"]]
+                seq += answer
+                sup += [False] + [True] * (len(answer) - 1)  # predict each answer token and the end marker
+            seqs.append(seq + [ids["<plan>"]])
+            supervised.append(sup + [False])
+        token_ids, real = _pad(seqs, ids["<pad>"])
+        sup_mask, _ = _pad(supervised, False)
+        images = torch.from_numpy(dataset.images[rows]).permute(0, 3, 1, 2).float() / 255.0
+        prefix = network.prefix_embeddings(images, ego[rows])
+        embeds = torch.cat([prefix, network.lm.get_input_embeddings()(token_ids)], dim=1)
+        mask = torch.cat([torch.ones(len(rows), prefix.shape[1], dtype=torch.bool), real], dim=1)
+        out = network.lm(inputs_embeds=embeds, attention_mask=mask.long(), output_hidden_states=True)
+        p = prefix.shape[1]
+        logits = out.logits[:, p - 1 : -1]  # position j predicts token j
+        lm_mask = sup_mask.bool() & torch.from_numpy(~mismatched)[:, None]
+        lm_loss = F.cross_entropy(logits[lm_mask], token_ids[lm_mask])
+        plan_pos = p + real.sum(dim=1) - 1
+        hidden = out.hidden_states[-1][torch.arange(len(rows)), plan_pos]
+        plan_loss = F.smooth_l1_loss(network.plan(hidden), waypoints[rows])
+        loss = lm_loss + plan_loss
+        _update(optimiser, network, loss, _schedule(step, settings["steps"], settings["lr"]))
+        if step % 200 == 0 or step == settings["steps"] - 1:
+            log(f"  qa step {step:5d}  lm {lm_loss.item():.3f}  plan {plan_loss.item():.3f}  "
+                f"{time.perf_counter() - started:.0f} s")
+    return network.eval(), codec, config
+
+
+def _pad(seqs, pad):
+    import torch
+
+    width = max(len(s) for s in seqs)
+    dtype = torch.bool if isinstance(pad, bool) else torch.long
+    out = torch.full((len(seqs), width), pad, dtype=dtype)
+    real = torch.zeros((len(seqs), width), dtype=torch.bool)
+    for i, s in enumerate(seqs):
+        out[i, : len(s)] = torch.tensor(s, dtype=dtype)
+        real[i, : len(s)] = True
+    return out, real
+
+
+def _update(optimiser, network, loss, lr) -> None:
+    import torch
+
+    for group in optimiser.param_groups:
+        group["lr"] = lr
+    optimiser.zero_grad(set_to_none=True)
+    loss.backward()
+    torch.nn.utils.clip_grad_norm_(network.parameters(), 1.0)
+    optimiser.step()
+
+
+def run(models: list[str], seed: int, episodes: int, steps: int | None, out: Path | None, threads: int) -> dict:
+    """Generate data once, train each model, save its bundle; returns wall times per stage (s)."""
+    from .common import save_bundle
+    from .data import generate
+
+    times = {}
+    started = time.perf_counter()
+    _log(f"generating data: {episodes} expert episodes (seed {seed})")
+    dataset = generate(seed, episodes, progress=_log)
+    times["data"] = time.perf_counter() - started
+    _log(f"data: {len(dataset)} samples in {times['data']:.0f} s")
+    trainers = {"kv": train_kv, "qa": train_qa}
+    for name in models:
+        t0 = time.perf_counter()
+        network, codec, config = trainers[name](dataset, seed, steps=steps, threads=threads)
+        config.training["wall_time_s"] = round(time.perf_counter() - t0, 1)
+        paths = save_bundle(name, network, config, codec, out)
+        times[name] = time.perf_counter() - t0
+        _log(f"{name}: trained in {times[name]:.0f} s -> {paths['weights']}")
+    times["total"] = time.perf_counter() - started
+    return times
+
+
+@click.command("train-neural")
+@click.option("--model", "model", type=click.Choice(["kv", "qa", "both"]), default="both", show_default=True)
+@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--episodes", type=click.IntRange(1), default=160, show_default=True,
+              help="Expert episodes of randomised scenario variants to learn from.")
+@click.option("--steps", type=click.IntRange(1), default=None, help="Optimiser steps (default per model).")
+@click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
+              help="Where to write the bundles (default: the plugin's weights/ folder).")
+@click.option("--threads", type=click.IntRange(1), default=2, show_default=True)
+def train_command(model: str, seed: int, episodes: int, steps: int | None, out: Path | None, threads: int) -> None:
+    """Rebuild the neural reference models' weights from a seed (expert data → tokenizer → training)."""
+    models = ["kv", "qa"] if model == "both" else [model]
+    times = run(models, seed, episodes, steps, out, threads)
+    click.echo("wall time: " + ", ".join(f"{k} {v:.0f} s" for k, v in times.items()))
+
+
+if __name__ == "__main__":  # pragma: no cover
+    from vladrivebench.cli import main
+
+    sys.exit(main(["train-neural", *sys.argv[1:]]))
