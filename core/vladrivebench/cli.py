@@ -20,6 +20,7 @@ from .plugins import get_registry
 # Modules whose module-level ``COMMANDS`` list is added to the group, in this order.
 COMMAND_MODULES = [
     "vladrivebench.cmd_run",
+    "vladrivebench.cmd_scenarios",
 ]
 
 

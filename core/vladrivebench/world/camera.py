@@ -32,6 +32,8 @@ SKY_HORIZON = np.array((190, 214, 236), dtype=float)
 HAZE = np.array((176, 190, 204), dtype=float)
 SUN = np.array((0.35, -0.45, 0.82)) / np.linalg.norm((0.35, -0.45, 0.82))
 
+PROP_RANGE = 150.0
+"""Scenery farther than this from the camera is not drawn (level of detail; it is small and hazy there)."""
 LIGHT_HEAD_HEIGHT = 1.0
 """A traffic light actor's head occupies ``[height - 1.0, height]`` above the ground."""
 SIGN_PLATE_SIZE = 0.75
@@ -64,7 +66,7 @@ class Solid:
 _UNIT_CORNERS = np.array(
     [[sx, sy, sz] for sz in (0, 1) for sy in (-1, 1) for sx in (-1, 1)], dtype=float
 )  # index = sx_bit + 2 * sy_bit + 4 * sz_bit
-_FACES = (  # (corner indices counter-clockwise seen from outside, local outward normal)
+_FACES = (  # (corner indices counter-clockwise seen from outside, local outward normal); front face first
     ((1, 3, 7, 5), (1.0, 0.0, 0.0)),
     ((0, 4, 6, 2), (-1.0, 0.0, 0.0)),
     ((2, 6, 7, 3), (0.0, 1.0, 0.0)),
@@ -72,6 +74,8 @@ _FACES = (  # (corner indices counter-clockwise seen from outside, local outward
     ((4, 5, 7, 6), (0.0, 0.0, 1.0)),
     ((0, 2, 3, 1), (0.0, 0.0, -1.0)),
 )
+_FACE_CORNERS = np.array([corners for corners, _ in _FACES])
+_FACE_NORMALS = np.array([normal for _, normal in _FACES])
 
 
 class Camera:
@@ -131,7 +135,10 @@ class Camera:
         image[self._ground_index] = colours * (1 - self._ground_haze) + HAZE * self._ground_haze
         image = image.reshape(self.height, self.width, 3)
         groups = [solids_for_actor(a) for a in actors]
-        groups += [solids_for_prop(p, i) for i, p in enumerate(road.props if props is None else props)]
+        cam_x, cam_y, _ = self.camera_position(ego)
+        for i, prop in enumerate(road.props if props is None else props):
+            if math.hypot(prop.x - cam_x, prop.y - cam_y) <= PROP_RANGE:
+                groups.append(solids_for_prop(prop, i))
         self._draw_groups(image, ego, groups)
         return np.clip(image + 0.5, 0, 255).astype(np.uint8)
 
@@ -143,63 +150,71 @@ class Camera:
     # -- drawing ------------------------------------------------------------------------------------
     def _draw_groups(self, image: np.ndarray, ego: EgoState, groups: list[list[Solid]]) -> None:
         cam = self.camera_position(ego)
-        visible = []
-        for group in groups:
-            if not group:
-                continue
-            gx = sum(sd.x for sd in group) / len(group)
-            gy = sum(sd.y for sd in group) / len(group)
-            visible.append((-math.hypot(gx - cam[0], gy - cam[1]), len(visible), group))
-        visible.sort(key=lambda item: (item[0], item[1]))
-        for _, _, group in visible:
-            for solid in group:
-                self._draw_solid(image, ego, cam, solid)
+        ordered = []
+        for index, group in enumerate(groups):
+            if group:
+                gx = sum(sd.x for sd in group) / len(group)
+                gy = sum(sd.y for sd in group) / len(group)
+                ordered.append((-math.hypot(gx - cam[0], gy - cam[1]), index))
+        ordered.sort()
+        solids = [solid for _, index in ordered for solid in groups[index]]
+        if solids:
+            self._draw_solids(image, ego, cam, solids)
 
     def _to_camera(self, ego: EgoState, points: np.ndarray) -> np.ndarray:
-        """World points (N, 3) → camera frame (N, 3): (right, down, forward) along the optical axis."""
+        """World points (..., 3) → camera frame (..., 3): (right, down, depth along the optical axis)."""
         c, s = math.cos(ego.yaw), math.sin(ego.yaw)
-        dx, dy = points[:, 0] - ego.x, points[:, 1] - ego.y
+        dx, dy = points[..., 0] - ego.x, points[..., 1] - ego.y
         fwd = c * dx + s * dy - self.mount_forward
         left = -s * dx + c * dy
-        down = self.mount_height - points[:, 2]
+        down = self.mount_height - points[..., 2]
         cp, sp = math.cos(self.pitch), math.sin(self.pitch)
-        return np.stack([-left, -fwd * sp + down * cp, fwd * cp + down * sp], axis=1)
+        return np.stack([-left, -fwd * sp + down * cp, fwd * cp + down * sp], axis=-1)
 
-    def _draw_solid(self, image: np.ndarray, ego: EgoState, cam: np.ndarray, solid: Solid) -> None:
-        c, s = math.cos(solid.yaw), math.sin(solid.yaw)
-        local = _UNIT_CORNERS * [solid.length / 2, solid.width / 2, 1.0]
-        local[:, 2] = np.where(_UNIT_CORNERS[:, 2] > 0, solid.z1, solid.z0)
-        world = np.column_stack([solid.x + c * local[:, 0] - s * local[:, 1],
-                                 solid.y + s * local[:, 0] + c * local[:, 1], local[:, 2]])
-        camera = self._to_camera(ego, world)
-        depth = camera[:, 2]
-        if np.all(depth < self.near):
-            return
-        if np.all(depth > self.near):
-            u = self.cx + self.focal * camera[:, 0] / depth
-            v = self.cy + self.focal * camera[:, 1] / depth
-            if u.max() < 0 or u.min() > self.width or v.max() < 0 or v.min() > self.height:
-                return
-        for corners, normal in _FACES[:1] if solid.front_only else _FACES:
-            n = np.array([c * normal[0] - s * normal[1], s * normal[0] + c * normal[1], normal[2]])
-            if float(n @ (cam - world[list(corners)].mean(axis=0))) <= 0.0:
-                continue  # faces away from the camera
-            polygon = _clip_near(camera[list(corners)], self.near)
-            if len(polygon) < 3:
-                continue
-            u = self.cx + self.focal * polygon[:, 0] / polygon[:, 2]
-            v = self.cy + self.focal * polygon[:, 1] / polygon[:, 2]
+    def _draw_solids(self, image: np.ndarray, ego: EgoState, cam: np.ndarray, solids: list[Solid]) -> None:
+        """Project every solid at once, cull what is out of view, then fill the visible faces in order."""
+        params = np.array([(sd.x, sd.y, sd.yaw, sd.length, sd.width, sd.z0, sd.z1) for sd in solids])
+        x, y, yaw, length, width, z0, z1 = params.T
+        c, s = np.cos(yaw)[:, None], np.sin(yaw)[:, None]
+        lx = _UNIT_CORNERS[:, 0] * (length[:, None] / 2)
+        ly = _UNIT_CORNERS[:, 1] * (width[:, None] / 2)
+        world = np.stack([x[:, None] + c * lx - s * ly, y[:, None] + s * lx + c * ly,
+                          np.where(_UNIT_CORNERS[:, 2] > 0, z1[:, None], z0[:, None])], axis=-1)
+        camera = self._to_camera(ego, world)  # (N, 8, 3)
+        depth = camera[..., 2]
+        all_front = np.all(depth > self.near, axis=1)
+        safe = np.where(depth > self.near, depth, 1.0)
+        u = self.cx + self.focal * camera[..., 0] / safe
+        v = self.cy + self.focal * camera[..., 1] / safe
+        off_image = (u.max(1) < 0) | (u.min(1) > self.width) | (v.max(1) < 0) | (v.min(1) > self.height)
+        keep = ~np.all(depth < self.near, axis=1) & ~(all_front & off_image)
+        normals = np.stack([c * _FACE_NORMALS[:, 0] - s * _FACE_NORMALS[:, 1],
+                            s * _FACE_NORMALS[:, 0] + c * _FACE_NORMALS[:, 1],
+                            np.broadcast_to(_FACE_NORMALS[:, 2], c.shape[:1] + (6,))], axis=-1)  # (N, 6, 3)
+        face_centres = world[:, _FACE_CORNERS].mean(axis=2)
+        facing = np.einsum("nfk,nfk->nf", normals, cam - face_centres) > 0.0
+        shade = 0.55 + 0.45 * np.clip(normals @ SUN, 0.0, None)
+        for n in np.flatnonzero(keep):
+            solid = solids[n]
             colour = np.asarray(solid.colour, dtype=float)
-            if not solid.emissive:
-                colour = colour * (0.55 + 0.45 * max(0.0, float(n @ SUN)))
-            _fill_convex(image, u, v, colour, at_least_one=solid.emissive)
+            for f in range(1 if solid.front_only else 6):
+                if not facing[n, f]:
+                    continue
+                corners = _FACE_CORNERS[f]
+                if all_front[n]:
+                    pu, pv = u[n, corners], v[n, corners]
+                else:
+                    polygon = _clip_near(camera[n, corners], self.near)
+                    if len(polygon) < 3:
+                        continue
+                    pu = self.cx + self.focal * polygon[:, 0] / polygon[:, 2]
+                    pv = self.cy + self.focal * polygon[:, 1] / polygon[:, 2]
+                shaded = colour if solid.emissive else colour * shade[n, f]
+                _fill_convex(image, pu.tolist(), pv.tolist(), shaded, at_least_one=solid.emissive)
 
 
 def _clip_near(polygon: np.ndarray, near: float) -> np.ndarray:
     """Sutherland–Hodgman clipping of a camera-frame polygon against the plane depth = ``near``."""
-    inside = polygon[:, 2] >= near
-    if inside.all():
-        return polygon
     out = []
     count = len(polygon)
     for i in range(count):
@@ -213,34 +228,52 @@ def _clip_near(polygon: np.ndarray, near: float) -> np.ndarray:
     return np.array(out) if out else np.zeros((0, 3))
 
 
-def _fill_convex(image: np.ndarray, u: np.ndarray, v: np.ndarray, colour: np.ndarray,
+def _fill_convex(image: np.ndarray, u: list[float], v: list[float], colour: np.ndarray,
                  at_least_one: bool = False) -> int:
-    """Fill the convex polygon (u, v) (pixel coordinates); pixels whose centres are inside are painted."""
+    """Fill the convex polygon with vertices (u, v) in pixel coordinates: every pixel whose centre lies
+    inside is painted. Returns the number of pixels painted.
+
+    Each edge bounds the polygon's span on every pixel row from the left or from the right, so the
+    inside test is one interval per row instead of one half-plane test per pixel and edge.
+    """
     height, width = image.shape[:2]
-    u0, u1 = max(int(math.floor(u.min())), 0), min(int(math.ceil(u.max())), width)
-    v0, v1 = max(int(math.floor(v.min())), 0), min(int(math.ceil(v.max())), height)
+    u0, u1 = max(math.floor(min(u)), 0), min(math.ceil(max(u)), width)
+    v0, v1 = max(math.floor(min(v)), 0), min(math.ceil(max(v)), height)
     if u0 >= u1 or v0 >= v1:
         return 0
-    area = float(np.sum(u * np.roll(v, -1) - np.roll(u, -1) * v))
-    if abs(area) < 1e-12:
-        inside = np.zeros((v1 - v0, u1 - u0), dtype=bool)
-    else:
-        pu = np.arange(u0, u1) + 0.5
-        pv = (np.arange(v0, v1) + 0.5)[:, None]
-        inside = np.ones((v1 - v0, u1 - u0), dtype=bool)
+    count = len(u)
+    area = sum(u[i] * v[(i + 1) % count] - u[(i + 1) % count] * v[i] for i in range(count))
+    painted = 0
+    if abs(area) > 1e-12:
         sign = 1.0 if area > 0 else -1.0
-        for i in range(len(u)):
-            au, av = u[i], v[i]
-            bu, bv = u[(i + 1) % len(u)], v[(i + 1) % len(u)]
-            inside &= sign * ((bu - au) * (pv - av) - (bv - av) * (pu - au)) >= 0.0
-    painted = int(inside.sum())
-    if painted:
-        image[v0:v1, u0:u1][inside] = colour
-    elif at_least_one:
-        cu, cv = int(np.clip(u.mean(), 0, width - 1)), int(np.clip(v.mean(), 0, height - 1))
+        rows = _PIXEL_CENTRES[v0:v1]
+        lo = np.full(v1 - v0, -np.inf)
+        hi = np.full(v1 - v0, np.inf)
+        for i in range(count):
+            au, av, bu, bv = u[i], v[i], u[(i + 1) % count], v[(i + 1) % count]
+            # Inside when k * u + c >= 0 on a row at height `rows`.
+            k = -sign * (bv - av)
+            c = sign * ((bu - au) * (rows - av) + (bv - av) * au)
+            if k > 0.0:
+                lo = np.maximum(lo, -c / k)
+            elif k < 0.0:
+                hi = np.minimum(hi, -c / k)
+            else:
+                hi = np.where(c < 0.0, -np.inf, hi)
+        columns = _PIXEL_CENTRES[u0:u1]
+        inside = (columns >= lo[:, None]) & (columns <= hi[:, None])
+        painted = int(np.count_nonzero(inside))
+        if painted:
+            image[v0:v1, u0:u1][inside] = colour
+    if not painted and at_least_one:
+        cu = min(max(int(sum(u) / count), 0), width - 1)
+        cv = min(max(int(sum(v) / count), 0), height - 1)
         image[cv, cu] = colour
         painted = 1
     return painted
+
+
+_PIXEL_CENTRES = np.arange(8192) + 0.5
 
 
 # -- appearance of each kind ---------------------------------------------------------------------------

@@ -366,7 +366,7 @@ def _junction(scenario: Scenario, half: float, ego_y: float) -> dict:
 _URBAN_LENGTHS = (18.0, 26.0, 14.0, 30.0, 22.0)
 _URBAN_HEIGHTS = (14.0, 22.0, 9.0, 30.0, 17.0, 12.0)
 _URBAN_GAP = 3.0
-_HOUSE_SPACING = 22.0
+_HOUSE_SPACING = 28.0
 
 
 def scenery_props(geometry: dict, scenery: str) -> tuple[Prop, ...]:

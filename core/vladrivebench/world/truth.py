@@ -65,11 +65,9 @@ class RouteExtent:
     d_max: float
 
 
-def route_extent(road: RoadGeometry, actor: Actor, near_s: float | None = None) -> RouteExtent:
-    corners = Box.of_actor(actor).corners()
-    lo = None if near_s is None else near_s - 30.0
-    hi = None if near_s is None else near_s + 30.0
-    s, d = road.route.project(corners, lo, hi)
+def route_extent(road: RoadGeometry, actor: Actor) -> RouteExtent:
+    """Where an actor's corners lie in route coordinates (nearest points of the whole route)."""
+    s, d = road.route.project(Box.of_actor(actor).corners())
     return RouteExtent(float(s.min()), float(s.max()), float(d.min()), float(d.max()))
 
 
@@ -108,7 +106,7 @@ class TruthTracker:
         """The ground truth after the ego and ``actors`` (road users, without features) reached this state."""
         s_centre = self.ego_s(ego)
         front = s_centre + ego.length / 2
-        extents = {a.actor_id: route_extent(self.road, a, s_centre) for a in actors}
+        extents = {a.actor_id: route_extent(self.road, a) for a in actors}
         critical = self.scenario.critical
         distance = blocking = None
         if critical is not None:

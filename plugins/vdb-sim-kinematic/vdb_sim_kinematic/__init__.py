@@ -1,0 +1,3 @@
+"""The kinematic simulator for VLADriveBench: registers simulator ``kinematic``."""
+
+__version__ = "0.1.0"
