@@ -65,7 +65,7 @@ PROVIDERS: dict[str, Provider] = {
 }
 
 _SPEC = re.compile(
-    r"^(?P<kind>[A-Za-z][A-Za-z0-9_-]*):(?P<model>.+?)(?:@(?P<url>https?://[^?\s]+))?(?:\?(?P<opts>[^\s]*))?$"
+    r"^(?P<kind>[A-Za-z][A-Za-z0-9_-]*):(?P<model>[^\s?]+?)(?:@(?P<url>https?://[^?\s]+))?(?:\?(?P<opts>[^\s]*))?$"
 )
 
 

@@ -26,7 +26,8 @@ from .answer import InvalidAnswer, parse_answer_text, schema_text
 DEFAULT_PROMPT = "v1.toml"
 PLACEHOLDERS = ("instructions", "schema", "examples", "ground_truth", "cot")
 REQUIRED_PLACEHOLDERS = ("ground_truth", "cot")
-KNOWN_CONTEXT = ("critical_kind", "critical_position", "distance_to_critical", "light_state", "actors", "ego_speed")
+KNOWN_CONTEXT = ("critical_kind", "critical_position", "critical_speed", "distance_to_critical", "blocking",
+                 "light_state", "actors", "ego_speed", "lead_gap", "lead_speed")
 
 
 def default_prompt_path() -> Path:
@@ -147,22 +148,21 @@ def describe_cot(text: str, slots: Mapping[str, str]) -> str:
 
 
 def describe_context(context: Mapping[str, Any]) -> str:
-    """The ground truth of one step as short lines a model reads easily."""
-    lines = []
-    kind = context.get("critical_kind")
-    if kind:
-        where = _position(context.get("critical_position"))
-        along = _number(context.get("distance_to_critical"))
-        route = f"; {along} m along the route" if along is not None else ""
-        lines.append(f"- Critical feature: {_kind(kind)}{' ' + where if where else ''}{route}")
-    else:
-        lines.append("- Critical feature: none in this scene (target_mentioned must be null)")
+    """The ground truth of one step as short lines a model reads easily.
+
+    Reads the keys of ``vladrivebench.labels.context_from_step``; any other key is shown as JSON.
+    """
+    lines = [_critical_line(context)]
     if context.get("light_state"):
         lines.append(f"- Traffic light state: {context['light_state']}")
     actors = context.get("actors")
     if isinstance(actors, list):
         listed = [_actor(actor) for actor in actors]
         lines.append("- Actors present (nothing else is there): " + ("; ".join(listed) if listed else "none"))
+    gap, lead_speed = _number(context.get("lead_gap")), _number(context.get("lead_speed"))
+    if gap is not None:
+        moving = f", {_motion(lead_speed)}" if lead_speed is not None else ""
+        lines.append(f"- Lead actor in the ego lane: {gap} m ahead{moving}")
     speed = _number(context.get("ego_speed"))
     if speed is not None:
         lines.append(f"- Ego speed: {speed} m/s")
@@ -172,11 +172,45 @@ def describe_context(context: Mapping[str, Any]) -> str:
     return "\n".join(lines)
 
 
+def _critical_line(context: Mapping[str, Any]) -> str:
+    kind = context.get("critical_kind")
+    if not kind:
+        return "- Critical feature: none in this scene (target_mentioned must be null)"
+    parts = [f"- Critical feature: {_kind(kind)}"]
+    where = _position(context.get("critical_position"))
+    if where:
+        parts.append(f" {where}")
+    along = _number(context.get("distance_to_critical"))
+    if along is not None:
+        parts.append(f"; {along} m along the route")
+    motion = _motion(context.get("critical_speed"))
+    if motion:
+        parts.append(f"; {motion}")
+    if "blocking" in context and kind in ("pedestrian", "car", "animal"):
+        parts.append("; it blocks the ego lane" if context["blocking"] else "; it does not block the ego lane")
+    return "".join(parts)
+
+
 def _actor(actor: Any) -> str:
     if not isinstance(actor, Mapping):
         return str(actor)
+    text = _kind(actor.get("kind", "unknown"))
+    if actor.get("state"):
+        text += f" ({actor['state']})"
     where = _position(actor.get("position"))
-    return f"{_kind(actor.get('kind', 'unknown'))}{' ' + where if where else ''}"
+    if where:
+        text += f" {where}"
+    motion = _motion(actor.get("speed"))
+    if motion and actor.get("kind") not in ("traffic_light", "stop_sign"):
+        text += f", {motion}"
+    return text
+
+
+def _motion(speed: Any) -> str:
+    value = _number(speed)
+    if value is None:
+        return ""
+    return "stationary" if abs(value) < 0.05 else f"moving at {value} m/s"
 
 
 def _kind(kind: Any) -> str:
