@@ -43,6 +43,8 @@ INTENTS = ("brake", "accelerate", "none")
 CONDITION_KINDS = ("selfsplice", "text", "harvest", "shuffle", "repeat", "ablation")
 
 SELFSPLICE = "selfsplice"
+RESERVED_NAMES = ("baseline", "openloop", "injected")
+"""Names a condition may not take: the intervention run uses them for its own episodes."""
 DEFAULT_SHUFFLE_SEED = 42
 """Slot i of a shuffled condition uses seed 42 + i (the paper's origbrake_shuffle used 42/43/44)."""
 
@@ -457,6 +459,9 @@ class ConditionLibrary:
             self.add(cond, (sources or {}).get(cond.name, "built-in"))
 
     def add(self, condition: Condition, source: str = "", *, replace: bool = False) -> None:
+        if condition.name in RESERVED_NAMES:
+            raise ConditionError(f"condition {condition.name!r} from {source or '?'}: the name is reserved for "
+                                 f"the intervention run's own episodes; pick another")
         if condition.name in self._conditions and not replace:
             raise ConditionError(f"condition {condition.name!r} from {source or '?'} is already defined by "
                                  f"{self.sources.get(condition.name, '?')} (set replace = true to override)")
@@ -679,6 +684,8 @@ def _parse_condition(name: str, spec: Any, where: str) -> tuple[Condition, bool]
     here = f"{where}: condition {name!r}"
     if not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9_.+-]*", name):
         raise ConditionError(f"{here}: names may hold letters, digits and _ . + - only")
+    if name in RESERVED_NAMES:
+        raise ConditionError(f"{here}: the name is reserved for the run's own episodes; pick another")
     if not isinstance(spec, Mapping):
         raise ConditionError(f"{here}: expected a table of fields, got {type(spec).__name__}")
     kind = spec.get("kind", "text")
