@@ -45,6 +45,14 @@ def register_executors(register):
     register("process", ProcessExecutor, description="a pool of spawned worker processes (--workers N)")
 
 
+@hookimpl
+def register_metrics(register):
+    from .metrics import BUILTIN_METRICS  # standard library only; matplotlib is imported when plotting
+
+    for name, factory, description in BUILTIN_METRICS:
+        register(name, factory, description=description)
+
+
 def _constant(value):
     def factory():
         return value
