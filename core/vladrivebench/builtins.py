@@ -51,6 +51,10 @@ def register_metrics(register):
 
     for name, factory, description in BUILTIN_METRICS:
         register(name, factory, description=description)
+    from .intervention_metrics import InterventionMetric  # numpy only; scipy/statsmodels when computing
+
+    register("intervention", InterventionMetric, description="open-loop, closed-loop and safety intervention "
+             "tables (paper Tables 5-9) with the selfsplice gate")
 
 
 def _constant(value):

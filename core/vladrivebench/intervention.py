@@ -555,8 +555,8 @@ def _episodes_by_role(out: Path) -> dict[tuple[str, int, str], Any]:
     return found
 
 
-def analyse(out: Path | str) -> dict[str, Any]:
-    """Compute the results of the intervention run in ``out`` from its logs and write ``intervention.json``."""
+def analyse(out: Path | str, *, write: bool = True) -> dict[str, Any]:
+    """Compute the results of the intervention run in ``out`` from its logs (and write ``intervention.json``)."""
     from .sweep import write_json_atomic
 
     out = Path(out)
@@ -580,7 +580,8 @@ def analyse(out: Path | str) -> dict[str, Any]:
     results["gate"] = gate.to_json()
     results["valid"] = gate.valid
     results["harvested"] = _harvest_record(config, episodes)
-    write_json_atomic(out / RESULTS_NAME, results)
+    if write:
+        write_json_atomic(out / RESULTS_NAME, results)
     return results
 
 
