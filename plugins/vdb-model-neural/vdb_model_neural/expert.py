@@ -29,6 +29,7 @@ MAX_ACCEL = 1.5
 OBSTACLE_MARGIN = 3.0  # stop the front bumper this far before an obstacle (distances are bumper-based)
 LINE_MARGIN = 1.0  # … and this far before a stop line
 REACT_DISTANCE = 40.0
+SPEED_TIME_CONSTANT = 0.25  # s: how fast the planned speed follows its target
 SALIENCE_THRESHOLD = 0.012
 OBSTACLE_KINDS = ("pedestrian", "car", "animal")
 
@@ -98,11 +99,11 @@ def rollout_controls(speed: float, gt: GroundTruth, stop_distance: float | None,
     for k in range(steps):
         target = cruise
         if stop_distance is not None:
-            room = stop_distance - travelled
+            room = stop_distance - travelled - v * DT  # what is left after this step at the current speed
             target = min(cruise, math.sqrt(max(0.0, 2.0 * COMFORT_DECEL * room)))
             if room <= 0.05:
                 target = 0.0
-        accel = float(np.clip((target - v) / 0.6, -MAX_DECEL, MAX_ACCEL))
+        accel = float(np.clip((target - v) / SPEED_TIME_CONSTANT, -MAX_DECEL, MAX_ACCEL))
         if v <= 0.0 and target <= 0.0:
             accel = 0.0
         kappa = pursuit_curvature(route, x, y, heading, max(4.0, 0.9 * v))

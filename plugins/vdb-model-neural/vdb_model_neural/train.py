@@ -57,7 +57,7 @@ def train_kv(dataset, seed: int, steps: int | None = None, threads: int = 2, log
     torch.manual_seed(seed)
     rng = np.random.default_rng([seed, 0x4B56])
     codec = TextCodec.train(dataset.sentences + dataset.cf_sentences, settings["vocab"])
-    config = ModelConfig(kind="kv", vocab_size=codec.vocab_size, context=128, max_cot_tokens=40,
+    config = ModelConfig(kind="kv", vocab_size=codec.vocab_size, context=256, max_cot_tokens=40,
                          training={"seed": seed, **settings, "samples": len(dataset)})
     network = KVNetwork(config)
     ids = codec.ids

@@ -1,0 +1,129 @@
+"""The expert driver's rules and the control rollout, as properties."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from vdb_model_neural import expert
+from vdb_model_neural.kv_model import controls_to_trajectory, normalise_controls, rollout
+from vladrivebench.records import Actor, EgoState, GroundTruth, Observation
+
+STRAIGHT = tuple((float(i), 0.0) for i in range(51))
+
+
+def observation(speed=8.0, kind=None, distance=None, blocking=False, light=None, offset=0.0):
+    actors = ()
+    critical = None
+    if kind is not None:
+        critical = "x"
+        size = {"pedestrian": (0.5, 0.6, 1.75), "car": (4.6, 1.9, 1.5)}.get(kind, (0.5, 0.5, 3.0))
+        actors = (Actor("x", kind, x=2.35 + distance, y=offset, length=size[0], width=size[1], height=size[2],
+                        state=light),)
+    gt = GroundTruth(step=0, time=0.0, actors=actors, critical_id=critical, critical_kind=kind,
+                     distance_to_critical=distance, blocking=blocking, light_state=light, route_ahead=STRAIGHT)
+    return Observation(step=0, time=0.0, image=np.zeros((8, 8, 3), np.uint8), ego=EgoState(0, 0, 0, speed),
+                       command="follow_lane", ground_truth=gt)
+
+
+def travelled(controls, speed):
+    return rollout(controls[:, 0], controls[:, 1], speed, 0.1).path_length(3.0)
+
+
+@settings(max_examples=60, deadline=None)
+@given(speed=st.floats(0.0, 10.0), stop=st.floats(0.0, 40.0))
+def test_a_planned_stop_never_overshoots_and_speed_stays_non_negative(speed, stop):
+    controls = expert.rollout_controls(speed, observation().ground_truth, stop, expert.CRUISE_SPEED)
+    trajectory = rollout(controls[:, 0], controls[:, 1], speed, 0.1)
+    # Braking is capped at MAX_DECEL: only a stop closer than that allows may be overshot.
+    reachable = speed * speed / (2 * expert.MAX_DECEL * 0.8)
+    if stop > reachable + 0.5:
+        assert trajectory.forward_displacement(3.0) <= stop + 0.3
+    assert np.all(np.diff(trajectory.xy[:, 0]) >= -1e-9)  # never reverses
+
+
+@settings(max_examples=60, deadline=None)
+@given(speed=st.floats(0.0, 10.0))
+def test_cruising_goes_at_least_as_far_as_stopping(speed):
+    gt = observation().ground_truth
+    go = expert.rollout_controls(speed, gt, None, expert.CRUISE_SPEED)
+    stop = expert.rollout_controls(speed, gt, 5.0, expert.CRUISE_SPEED)
+    assert travelled(go, speed) >= travelled(stop, speed) - 1e-9
+    assert np.all(go[:, 0] <= expert.MAX_ACCEL + 1e-9) and np.all(stop[:, 0] >= -expert.MAX_DECEL - 1e-9)
+
+
+@settings(max_examples=40, deadline=None)
+@given(side=st.sampled_from([-1.0, 1.0]), lateral=st.floats(0.3, 3.0), heading=st.floats(-0.3, 0.3))
+def test_pure_pursuit_steers_towards_the_route(side, lateral, heading):
+    route = np.array([[float(i), side * lateral] for i in range(51)])
+    kappa = expert.pursuit_curvature(route, 0.0, 0.0, 0.0, 6.0)
+    assert math.copysign(1.0, kappa) == side
+
+
+@settings(max_examples=60, deadline=None)
+@given(distance=st.floats(-0.5, 40.0), kind=st.sampled_from(["pedestrian", "car"]), blocking=st.booleans())
+def test_the_expert_stops_exactly_for_blocking_road_users(distance, kind, blocking):
+    decision = expert.ExpertDriver().decide(observation(kind=kind, distance=distance, blocking=blocking))
+    assert decision.action == ("stop" if blocking else "go")
+    if blocking:
+        assert decision.stop_distance == distance - expert.OBSTACLE_MARGIN
+
+
+@settings(max_examples=60, deadline=None)
+@given(distance=st.floats(3.0, 45.0), colour=st.sampled_from(["red", "green"]))
+def test_the_expert_stops_for_red_and_passes_green(distance, colour):
+    decision = expert.ExpertDriver().decide(observation(kind="traffic_light", distance=distance, light=colour))
+    assert decision.action == ("stop" if colour == "red" else "go")
+
+
+def test_the_stop_sign_is_passed_after_a_full_stop():
+    driver = expert.ExpertDriver()
+    assert driver.decide(observation(speed=5.0, kind="stop_sign", distance=10.0)).action == "stop"
+    assert driver.decide(observation(speed=0.0, kind="stop_sign", distance=1.5)).action == "go"
+    assert driver.decide(observation(speed=2.0, kind="stop_sign", distance=1.0)).action == "go"
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 10_000), speed=st.floats(2.0, 9.0), distance=st.floats(4.0, 30.0))
+def test_counterfactuals_state_the_opposite_and_follow_it_unless_vision_vetoes(seed, speed, distance):
+    rng = np.random.default_rng(seed)
+    clear = observation(speed=speed)
+    action, text, controls = expert.counterfactual(clear, expert.Decision("go", "clear"), 8.0, rng)
+    assert action == "stop" and text
+    assert travelled(controls, speed) < travelled(expert.rollout_controls(speed, clear.ground_truth, None, 8.0),
+                                                   speed)
+    blocked = observation(speed=speed, kind="pedestrian", distance=distance, blocking=True)
+    decision = expert.ExpertDriver().decide(blocked)
+    action, text, controls = expert.counterfactual(blocked, decision, 8.0, rng)
+    assert action == "go" and text in expert.GO_CLEAR
+    obeyed = expert.salience(blocked) < expert.SALIENCE_THRESHOLD
+    followed = expert.rollout_controls(speed, blocked.ground_truth, None if obeyed else decision.stop_distance, 8.0)
+    assert np.array_equal(controls, followed)
+
+
+def test_salience_is_larger_for_a_car_than_a_pedestrian_at_the_same_distance():
+    car = observation(kind="car", distance=12.0, blocking=True)
+    pedestrian = observation(kind="pedestrian", distance=12.0, blocking=True, offset=1.5)
+    assert expert.salience(car) > expert.SALIENCE_THRESHOLD > expert.salience(pedestrian)
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 10_000), speed=st.floats(0.0, 10.0))
+def test_control_normalisation_round_trips_through_the_rollout(seed, speed):
+    controls = np.random.default_rng(seed).normal(size=(30, 2)) * [2.0, 0.05]
+    a = rollout(controls[:, 0], controls[:, 1], speed, 0.1)
+    b = controls_to_trajectory(normalise_controls(controls), speed, 0.1)
+    assert np.allclose(a.xy, b.xy) and a.problems() is None
+
+
+def test_cot_templates_cover_every_decision():
+    rng = np.random.default_rng(0)
+    for kind in ("pedestrian", "car", "animal"):
+        decision = expert.Decision("stop", "blocking", kind, 5.0)
+        assert kind.split()[0] in expert.sentence_cot(decision, 5.0, rng).lower()
+        slots = expert.slot_cot(observation(kind=kind, distance=10.0, blocking=True), decision, rng)
+        assert set(slots) == {"scene", "objects", "decision"} and "stop" in slots["decision"]
+        assert slots["objects"].startswith(kind.capitalize())
