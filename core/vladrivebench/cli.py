@@ -19,6 +19,8 @@ from .plugins import get_registry
 
 # Modules whose module-level ``COMMANDS`` list is added to the group, in this order.
 COMMAND_MODULES = [
+    "vladrivebench.cmd_analysis",
+    "vladrivebench.cmd_intervene",
     "vladrivebench.cmd_run",
     "vladrivebench.cmd_scenarios",
 ]
