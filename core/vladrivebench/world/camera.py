@@ -265,10 +265,15 @@ def _fill_convex(image: np.ndarray, u: list[float], v: list[float], colour: np.n
         painted = int(np.count_nonzero(inside))
         if painted:
             image[v0:v1, u0:u1][inside] = colour
-    if not painted and at_least_one:
-        cu = min(max(int(sum(u) / count), 0), width - 1)
-        cv = min(max(int(sum(v) / count), 0), height - 1)
-        image[cv, cu] = colour
+    centroid_u, centroid_v = sum(u) / count, sum(v) / count
+    coverage = abs(area) / 2
+    if not painted and coverage < 1.0 and 0 <= centroid_u < width and 0 <= centroid_v < height:
+        # A face smaller than a pixel can fall between pixel centres: a real sensor still sees it, as a
+        # pixel partly covered. Blend it into the pixel under its centroid by the area it covers
+        # (a lit lamp outshines the rest of its pixel).
+        coverage = 1.0 if at_least_one else coverage
+        cu, cv = int(centroid_u), int(centroid_v)
+        image[cv, cu] = image[cv, cu] * (1.0 - coverage) + colour * coverage
         painted = 1
     return painted
 
@@ -322,12 +327,13 @@ def _light_solids(actor: Actor) -> list[Solid]:
     ]
     lamp = min(actor.width * 0.7, LIGHT_HEAD_HEIGHT / 3 * 0.8)
     lx, ly = _offset(x, y, yaw, actor.length / 2 + 0.03)
+    lamps = []
     for i, colour in enumerate(LAMP_ORDER):
         centre = h - LIGHT_HEAD_HEIGHT * (i + 0.5) / 3
         lit = actor.state == colour
-        solids.append(Solid(lx, ly, yaw, 0.06, lamp, centre - lamp / 2, centre + lamp / 2,
-                            LAMP_COLOURS[colour] if lit else LAMP_OFF[colour], emissive=lit, front_only=True))
-    return solids
+        lamps.append(Solid(lx, ly, yaw, 0.06, lamp, centre - lamp / 2, centre + lamp / 2,
+                           LAMP_COLOURS[colour] if lit else LAMP_OFF[colour], emissive=lit, front_only=True))
+    return solids + sorted(lamps, key=lambda solid: solid.emissive)  # the lit lamp last: it outshines
 
 
 def _stop_sign_solids(actor: Actor) -> list[Solid]:
