@@ -1,7 +1,7 @@
 """``vdb intervene`` (the CoT intervention protocol) and ``vdb conditions`` (the condition library).
 
 Results go to stdout (the paper-shaped tables, or JSON with ``--json``); progress goes to stderr. A run
-whose selfsplice gate fails prints one loud ``INVALID RUN`` line on stderr and exits with status 3.
+whose selfsplice gate fails prints one loud ``vdb: error: INVALID RUN …`` line on stderr and exits with status 3.
 """
 
 from __future__ import annotations
@@ -13,10 +13,13 @@ from typing import Any
 
 import click
 
-from .errors import ConfigError
+from .errors import ConfigError, VdbError
 
-INVALID_EXIT = 3
-"""Exit status of a run that completed but whose selfsplice gate failed (results are marked invalid)."""
+
+class InvalidRunError(VdbError):
+    """The run completed but its selfsplice gate failed: results are written, marked invalid; exit 3."""
+
+    exit_code = 3
 
 DEFAULT_CONDITIONS = {"open-loop": "selfsplice,accel,pedestrian,car", "closed-loop": "selfsplice,accel,pedestrian,car",
                       "safety": "accel"}
@@ -144,8 +147,7 @@ def _num(value: Any) -> str:
 @click.option("--power", type=float, default=0.8, show_default=True, help="--plan: the power wanted.")
 @click.option("--quiet", is_flag=True, help="No progress on stderr.")
 @click.option("--json", "as_json", is_flag=True, help="Print the results as JSON.")
-@click.pass_context
-def intervene_command(ctx: click.Context, **opts: Any) -> None:
+def intervene_command(**opts: Any) -> None:
     """Inject CoT conditions and measure what they do to the action (paper Section 3.6).
 
     \b
@@ -186,8 +188,7 @@ def intervene_command(ctx: click.Context, **opts: Any) -> None:
         click.echo(f"\nlogs and results: {out} (intervention.json); `vdb report {out}` for plots")
     message = gate_message(results)
     if message:
-        click.echo(f"vdb: {message}", err=True)
-        ctx.exit(INVALID_EXIT)
+        raise InvalidRunError(message)
 
 
 @click.command("conditions")
