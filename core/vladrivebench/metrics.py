@@ -65,7 +65,8 @@ class Cell:
         if n < min_count or n == 0:
             return cls(MISSING, n)
         value = math.fsum(values) / n
-        return cls(f"{value * scale:.{digits}f}", n, value)
+        shown = format_percent(value, digits) if scale == 100.0 else f"{value * scale:.{digits}f}"
+        return cls(shown, n, value)
 
     @classmethod
     def text(cls, display: str, count: int) -> Cell:
@@ -283,7 +284,9 @@ def wilson_interval(successes: float, total: int, z: float = 1.959963984540054) 
     z2 = z * z
     centre = (p + z2 / (2 * total)) / (1 + z2 / total)
     half = z * math.sqrt(p * (1 - p) / total + z2 / (4 * total * total)) / (1 + z2 / total)
-    return max(0.0, centre - half), min(1.0, centre + half)
+    low = 0.0 if successes == 0 else max(0.0, centre - half)  # exact ends: no 1e-17 rounding residue
+    high = 1.0 if successes == total else min(1.0, centre + half)
+    return low, high
 
 
 def format_percent(value: float, digits: int = 1) -> str:

@@ -73,10 +73,15 @@ def _metric_failed(dataset: AnalysisDataset, component: Any, what: str, exc: Exc
     dataset.note(message)
 
 
+def _heading(section: Section) -> str:
+    text = section.description or section.metric
+    return text[:1].upper() + text[1:]
+
+
 # -- cell text ---------------------------------------------------------------------------------------------
 def cell_text(cell: Cell, count_format: str = "{display} ({count})") -> str:
-    """A cell with its count, unless the display already is the count."""
-    if cell.display == str(cell.count):
+    """A cell with its count, unless the display already is the count or is text (its count is in the JSON)."""
+    if cell.display == str(cell.count) or (cell.value is None and not cell.missing):
         return cell.display
     return count_format.format(display=cell.display, count=cell.count)
 
@@ -128,7 +133,7 @@ def render_markdown(dataset: AnalysisDataset, sections: Sequence[Section], plot_
     if dataset.notes:
         out += ["**What is missing or was left out:**", ""] + [f"- {n}" for n in dataset.notes] + [""]
     for section in sections:
-        out += [f"## {section.description or section.metric}", ""]
+        out += [f"## {_heading(section)}", ""]
         for table in section.tables:
             out += [f"### {table.title}", ""]
             header = list(table.label_columns) + [
@@ -225,7 +230,7 @@ def render_html(dataset: AnalysisDataset, sections: Sequence[Section], plot_png:
         out.append("<div class='warn'><b>What is missing or was left out</b><ul>"
                    + "".join(f"<li>{esc(n)}</li>" for n in dataset.notes) + "</ul></div>")
     for section in sections:
-        out.append(f"<h2>{esc(section.description or section.metric)}</h2>")
+        out.append(f"<h2>{esc(_heading(section))}</h2>")
         for table in section.tables:
             out += _html_table(table)
         for plot in section.plots:
