@@ -240,3 +240,45 @@ def component_identity(job) -> tuple[int, int]:
 
     registry = sweep._registry_for(job.registry)
     return os.getpid(), id(sweep._component(registry, job.model))
+
+
+# -- a `vdb` entry point with only these fakes installed (for subprocess tests) ------------------------
+def fake_resolve_scenarios(spec, registry=None):
+    """Stands in for ``vladrivebench.scenarios.resolve_scenarios`` with the fake scenarios."""
+    from vladrivebench.errors import UnknownNameError
+
+    ids = [s.id for s in SCENARIOS] if spec == "all" else (spec.split(",") if isinstance(spec, str) else spec)
+    by_id = {s.id: s for s in SCENARIOS}
+    unknown = [i for i in ids if i not in by_id]
+    if unknown:
+        raise UnknownNameError("scenario", unknown[0], by_id)
+    return [by_id[i] for i in ids]
+
+
+def fake_registry():
+    """The core's built-ins (executors …) and these fakes, without any installed plugin."""
+    from vladrivebench import builtins
+    from vladrivebench.plugins import Registry
+
+    return Registry([("core", builtins), ("fakes", this_module())], entry_points=False)
+
+
+def this_module():
+    import importlib
+
+    return importlib.import_module("runner_fakes")
+
+
+def vdb_main(argv: list[str]) -> int:
+    """``vdb`` with the fake registry and fake scenario resolution."""
+    from vladrivebench import cli, plugins, scenarios
+
+    plugins.set_registry(fake_registry())
+    scenarios.resolve_scenarios = fake_resolve_scenarios
+    return cli.main(argv)
+
+
+if __name__ == "__main__":  # python tests/runner_fakes.py run --model echo …
+    import sys
+
+    sys.exit(this_module().vdb_main(sys.argv[1:]))

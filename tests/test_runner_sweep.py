@@ -203,11 +203,12 @@ def test_seed_list_and_episode_ids():
     assert sweep.episode_id("org/model v2", "TL.1-red", 3) == "org-model-v2__TL.1-red__s3"
 
 
-def test_stale_partials_of_live_processes_are_kept(tmp_path):
+def test_partials_being_written_are_kept_and_abandoned_ones_removed(tmp_path):
+    from vladrivebench.logs import EpisodeWriter
+
     (tmp_path / "episodes").mkdir(parents=True)
-    live = tmp_path / "episodes" / f"a.mcap.{os.getppid()}.partial"
-    dead = tmp_path / "episodes" / "b.mcap.999999999.partial"
-    live.write_bytes(b"x")
-    dead.write_bytes(b"x")
-    sweep._remove_stale_partials(tmp_path / "episodes")
-    assert live.exists() and not dead.exists()
+    abandoned = tmp_path / "episodes" / f"b.mcap.{os.getpid()}.partial"
+    abandoned.write_bytes(b"x")
+    with EpisodeWriter(tmp_path / "episodes" / "a.mcap", {"episode_id": "a"}) as writer:
+        sweep._remove_stale_partials(tmp_path / "episodes")
+        assert writer.partial_path.exists() and not abandoned.exists()

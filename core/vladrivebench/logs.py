@@ -276,6 +276,7 @@ class EpisodeWriter:
 
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._file = open(self.partial_path, "wb")  # noqa: SIM115 - closed in finish/__exit__
+        _lock(self._file)  # held until closed: tells a resumed sweep this partial is still being written
         self._writer = Writer(self._file, chunk_size=self.chunk_size, compression=CompressionType.ZSTD,
                               enable_data_crcs=True)
         self._writer.start(profile=PROFILE, library=f"vladrivebench/{__version__}")
@@ -333,6 +334,48 @@ def _camera_message(obs: Observation) -> dict[str, Any]:
         "format": "png",
         "data": base64.b64encode(encode_png(obs.image)).decode("ascii"),
     }
+
+
+def _lock(handle: Any) -> None:
+    try:
+        import fcntl
+    except ImportError:  # not POSIX: partial_in_use falls back to the writer's pid
+        return
+    fcntl.flock(handle.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+
+
+def partial_in_use(path: Path | str) -> bool:
+    """Whether a live :class:`EpisodeWriter` is still writing the partial log ``path``.
+
+    The writer holds an exclusive ``flock`` on it; the kernel releases it when the writer's process
+    dies, however it dies — so a partial nobody holds is left over from a killed run.
+    """
+    try:
+        import fcntl
+    except ImportError:
+        return _pid_alive(Path(path).name[: -len(PARTIAL_SUFFIX)].rsplit(".", 1)[-1])
+    try:
+        with open(path, "rb") as handle:
+            try:
+                fcntl.flock(handle.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                return True
+            fcntl.flock(handle.fileno(), fcntl.LOCK_UN)
+            return False
+    except FileNotFoundError:
+        return False
+
+
+def _pid_alive(pid: str) -> bool:
+    if not pid.isdigit():
+        return False
+    try:
+        os.kill(int(pid), 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
 
 
 def _fsync_directory(directory: Path) -> None:

@@ -29,7 +29,7 @@ from typing import Any
 
 from .errors import ConfigError, VdbError
 from .executors import JobFailure
-from .logs import PARTIAL_SUFFIX, EpisodeWriter, read_result
+from .logs import PARTIAL_SUFFIX, EpisodeWriter, partial_in_use, read_result
 from .plugins import Registry, check_options, get_registry
 from .runner import EpisodeFailure, run_episode
 
@@ -511,25 +511,12 @@ def write_json_atomic(path: Path, data: Any) -> None:
 
 
 def _remove_stale_partials(directory: Path) -> None:
-    """Delete partial logs left by processes that no longer run (a killed sweep)."""
+    """Delete partial logs that no live writer holds (left by a killed sweep)."""
     if not directory.is_dir():
         return
     for path in directory.glob(f"*{PARTIAL_SUFFIX}"):
-        pid = path.name[: -len(PARTIAL_SUFFIX)].rsplit(".", 1)[-1]
-        if not pid.isdigit() or not _alive(int(pid)):
+        if not partial_in_use(path):
             path.unlink(missing_ok=True)
-
-
-def _alive(pid: int) -> bool:
-    if pid == os.getpid():
-        return False  # our own leftovers from an earlier sweep in this process
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
 
 
 # -- versions -----------------------------------------------------------------------------------------
