@@ -53,13 +53,15 @@ def _segments_cross(p1, p2, q1, q2) -> bool:
 
 def edge_oracle(a: Box, b: Box) -> bool:
     """Brute force without projections: two convex polygons meet iff two edges cross or one holds a
-    corner of the other."""
+    point (corner or centre) of the other."""
     ca, cb = a.corners(), b.corners()
     for i in range(4):
         for j in range(4):
             if _segments_cross(ca[i], ca[(i + 1) % 4], cb[j], cb[(j + 1) % 4]):
                 return True
-    return bool(a.contains(cb).any() or b.contains(ca).any())
+    centres = np.array([[a.x, a.y], [b.x, b.y]])
+    return bool(a.contains(cb).any() or b.contains(ca).any() or a.contains(centres[1:]).any()
+                or b.contains(centres[:1]).any())
 
 
 @given(boxes, boxes)
