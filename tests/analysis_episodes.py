@@ -96,10 +96,9 @@ TABLE = {
 class FakeLabeler:
     """Labels from :data:`TABLE`; unknown texts come back unlabelled (with the reason)."""
 
-    def __init__(self, version: str = "1", fail_after: int | None = None, backends: str | None = None):
+    def __init__(self, version: str = "1", fail_after: int | None = None):
         self.version = version
         self.fail_after = fail_after
-        self.backends = backends
         self.calls = 0
         self.labelled = 0
 

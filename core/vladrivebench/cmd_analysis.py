@@ -140,16 +140,17 @@ def _label_directory(labeler: Any, name: str, directory: Path, dry_run: bool, ch
     if not own:
         raise ConfigError(f"{directory}: every episode is an intervention run (injected CoTs); nothing to label")
     store = LabelStore(directory, name)
-    pending, seen, total = [], set(), 0
+    pending, seen, total, stored = [], set(), 0, 0
     for _episode, _step, item in label_items(own):
         total += 1
         key = label_key(item, name, labeler.version)
-        if key in store or key in seen:
-            continue
-        seen.add(key)
-        pending.append((item, key))
+        if key in store:
+            stored += 1
+        elif key not in seen:
+            seen.add(key)
+            pending.append((item, key))
     if dry_run:
-        _print_plan(labeler, name, [item for item, _ in pending], stored=total - len(pending))
+        _print_plan(labeler, name, [item for item, _ in pending], stored=stored)
         return
 
     key_of = {id(item): key for item, key in pending}
@@ -160,8 +161,10 @@ def _label_directory(labeler: Any, name: str, directory: Path, dry_run: bool, ch
 
     done = label_in_chunks(labeler, name, [item for item, _ in pending], store_chunk, chunk,
                            None if quiet or not pending else Progress(len(pending)))
-    click.echo(f"labelled {done} new CoTs ({total - done} of {total} steps already stored) with {name} "
-               f"{labeler.version} → {store.path}")
+    repeats = total - stored - done
+    click.echo(f"labelled {done} new CoTs for {total} steps ({stored} already stored"
+               + (f", {repeats} repeat a CoT in an identical situation" if repeats else "")
+               + f") with {name} {labeler.version} → {store.path}")
 
 
 def _print_plan(labeler: Any, name: str, items: list, stored: int = 0) -> None:
