@@ -124,6 +124,13 @@ class PlanningLabeler(FakeLabeler):
         return {"fake-backend": {"calls": len(items), "cached": 0}}
 
 
+class DyingLabeler(FakeLabeler):
+    """Interrupted (as by Ctrl-C) on its third ``label_batch`` call with chunks of 3."""
+
+    def __init__(self, version: str = "1"):
+        super().__init__(version, fail_after=6)
+
+
 class CheckedLabeler(FakeLabeler):
     def check(self):
         from vladrivebench.errors import ConfigError
@@ -136,6 +143,7 @@ def register_labelers(register):
     register("fake", FakeLabeler)
     register("planning", PlanningLabeler)
     register("checked", CheckedLabeler)
+    register("dying", DyingLabeler)
 
 
 def registry_with_fakes():

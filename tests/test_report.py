@@ -72,20 +72,13 @@ def test_label_shows_progress_with_eta_on_stderr(run_dir, fx, capsys):
 
 
 def test_a_killed_labelling_keeps_the_chunks_done(run_dir, fx, capsys):
-    with fx.registry_with_fakes() as registry:
-        original = registry.get("labeler", "fake").factory
-
-        def interrupted(**options):
-            return original(fail_after=6, **options)  # dies on the third chunk
-
-        registry._components["labeler"]["fake"] = registry.get("labeler", "fake").__class__(
-            "labeler", "fake", interrupted, "fakes", "(local)")
-        code = main(["label", str(run_dir), "--labeler", "fake", "--chunk", "3", "--quiet"])
+    with fx.registry_with_fakes():
+        code = main(["label", str(run_dir), "--labeler", "dying", "--chunk", "3", "--quiet"])
     capsys.readouterr()
     assert code == 130
-    assert len(LabelStore(run_dir, "fake")) == 6
-    code, out, _ = vdb(fx, capsys, "label", str(run_dir), "--labeler", "fake", "--quiet")
-    unique = len(LabelStore(run_dir, "fake"))
+    assert len(LabelStore(run_dir, "dying")) == 6
+    code, out, _ = vdb(fx, capsys, "label", str(run_dir), "--labeler", "dying", "--chunk", "1000", "--quiet")
+    unique = len(LabelStore(run_dir, "dying"))
     assert code == 0 and out.startswith(f"labelled {unique - 6} new CoTs")  # only what the kill left undone
 
 
