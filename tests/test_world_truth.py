@@ -164,3 +164,24 @@ def test_features_are_actors_with_the_light_colour():
     assert kinds == {"tl0": ("traffic_light", "red"), "stop0": ("stop_sign", None)}
     assert truth.light_state == "red" and truth.critical_kind == "traffic_light"
     assert truth.distance_to_critical == pytest.approx(100.0 - 2.35)
+
+
+@given(st.lists(st.sampled_from([0.0, 0.05, 0.5, 1.0, 2.0, 4.0]), min_size=20, max_size=80),
+       st.floats(85.0, 99.0))
+@settings(max_examples=40, deadline=None)
+def test_stop_sign_rule_matches_its_definition(speeds, start_front):
+    """Violation iff the front crosses the line without a speed below 0.1 m/s within 5 m before it."""
+    scenario, road = stop_sign_scenario()
+    tracker = TruthTracker(scenario, road)
+    front, seen = start_front, []
+    recorded = []
+    for step, speed in enumerate(speeds):
+        previous = front
+        front += speed * 0.1
+        seen.append((front, speed))
+        recorded += tracker.observe(step, ego_at(front - 2.35, speed=speed), []).violations
+        if step > 0 and previous < 100.0 <= front:
+            stopped = any(95.0 <= f <= 100.0 and v < 0.1 for f, v in seen)
+            assert recorded == ([] if stopped else ["stop_sign:stop0"])
+            return
+    assert recorded == []
