@@ -1,0 +1,462 @@
+"""The SUMO simulator: the scenario suite in SUMO through libsumo, seen by the shared camera.
+
+The world of a scenario is a SUMO network built with ``netconvert`` from the shared road geometry
+(:mod:`vdb_sim_sumo.network`) — or a user's own ``.net.xml`` with a route for the ego
+(:mod:`vdb_sim_sumo.usernet`). Each step (dt = 0.1 s):
+
+1. the ego moves under the control through the core's kinematic bicycle model (or is placed at an MPC
+   controller's ``next_state``) and is placed in SUMO with ``vehicle.moveToXY``; SUMO's other vehicles see
+   it as a road user (car following, junction right of way) but SUMO does not drive it;
+2. scenario road users whose trigger the ego has reached start moving. With ``pedestrians="scripted"``
+   (default) they follow the scenario's script (:mod:`vdb_sim_sumo.scripted`) and are placed in SUMO with
+   ``moveToXY``, as SUMO persons (pedestrians, animals) and vehicles (cars); with ``pedestrians="sumo"``
+   pedestrians and animals are walked by SUMO's striping model on sidewalks and crossings;
+3. SUMO advances one step: background vehicles and pedestrians (``background_*_per_hour``), the frozen
+   traffic light, the stop junction;
+4. collisions: the ego's box against every actor's box (the shared separating-axis test) united with the
+   collisions SUMO reports for the ego (its sublane model checks lateral overlap too), one entry per actor;
+5. the shared :class:`~vladrivebench.world.truth.TruthTracker` computes the ground truth from SUMO's
+   poses — distance to the critical feature, blocking, light state, red-light and stop-sign violations
+   (SUMO enforces no rule on a placed ego), terminal state — and the shared camera renders the image.
+
+Determinism: SUMO's random-number generator is seeded from the episode's seed, pedestrians' start
+positions are jittered from the same stream as the kinematic simulator's (so both simulators pose the same
+episode), and one SUMO simulation runs per process (:mod:`vdb_sim_sumo.session`): the same
+``(scenario, seed)`` gives the same episode, also after other episodes in the same process.
+"""
+
+from __future__ import annotations
+
+import math
+import weakref
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from vladrivebench.errors import ConfigError, ScenarioError
+from vladrivebench.records import Actor, Control, EgoState, Observation
+from vladrivebench.rng import episode_rng
+from vladrivebench.scenarios import Scenario
+from vladrivebench.world import bicycle
+from vladrivebench.world.boxes import colliding
+from vladrivebench.world.camera import Camera
+from vladrivebench.world.roads import RoadGeometry, build_road
+from vladrivebench.world.truth import TruthTracker
+
+from . import network
+from .lights import ego_colour, frozen_state
+from .scripted import ScriptedUser
+from .session import SumoSession, netconvert_binary, sumo_version
+from .traffic import TrafficDensity, routes_xml
+
+SUPPORTED_FEATURES = frozenset(
+    {f"layout:{name}" for name in ("straight", "t_junction", "four_way")}
+    | {f"scenery:{name}" for name in ("plain", "suburban", "urban")}
+    | {f"lanes:{n}" for n in (1, 2, 3, 4)}
+    | {f"actor:{kind}" for kind in ("pedestrian", "car", "animal")}
+    | {f"motion:{kind}" for kind in ("static", "along", "cross")}
+    | {f"traffic_light:{colour}" for colour in ("red", "yellow", "green")}
+    | {"stop_sign"}
+)
+"""Every scenario feature (see :meth:`Scenario.features`) this simulator represents."""
+PEDESTRIAN_MODELS = ("scripted", "sumo")
+JITTERED_KINDS = ("pedestrian", "animal")
+PERSON_KINDS = ("pedestrian", "animal")
+EGO_ID = "vdb.ego"
+ACTOR_PREFIX = "vdb.actor."
+START_CLEARANCE = 30.0
+"""Background vehicles within this distance (m) of the ego's start are removed when the episode begins."""
+PERSON_CLEARANCE = 4.0
+"""Background pedestrians within this distance (m) of the ego's start are removed when it begins."""
+SUMO_OPTIONS = (
+    "--step-length", f"{bicycle.DT}",
+    "--no-step-log", "true",
+    "--no-warnings", "true",
+    "--collision.action", "warn",
+    "--intermodal-collision.action", "warn",
+    "--collision.check-junctions", "true",
+    "--collision.mingap-factor", "0",
+    "--lateral-resolution", "0.5",  # the sublane model: SUMO's collision check sees lateral offsets
+    "--time-to-teleport", "-1",
+    "--pedestrian.model", "striping",
+    "--begin", "0",
+)
+
+
+@dataclass(frozen=True)
+class World:
+    """A scenario's SUMO world: geometry (the reference for the camera and the ground truth), network,
+    background routes, the ego's edges and lane, and the traffic light's node and approach edge."""
+
+    road: RoadGeometry
+    net: Path
+    routes: Path | None
+    route_edges: tuple[str, ...]
+    ego_lane: int
+    tls: str | None
+    approach: str | None
+    crossing_nodes: dict[str, str]
+
+
+class SumoSimulator:
+    """SUMO through libsumo at 10 Hz (see the module docstring).
+
+    Camera options as the kinematic simulator's: ``width`` × ``height`` pixels, ``render`` (False: a blank
+    image), ``hfov_deg``, ``camera_height`` (m), ``pitch_deg``; ``position_jitter`` (m) shifts pedestrians'
+    start along the route per seed. SUMO options: ``background_vehicles_per_hour`` and
+    ``background_pedestrians_per_hour`` (whole network), ``background_warmup_s`` (SUMO runs this long
+    before the episode so the traffic is under way), ``pedestrians`` (``"scripted"`` or ``"sumo"``),
+    ``net_file`` + ``route`` (a user's SUMO network and the ego's edges, comma-separated) with
+    ``depart_pos`` (m along the first edge), and ``cache_dir`` (where built networks are kept).
+    """
+
+    dt = bicycle.DT
+
+    def __init__(self, width: int = 160, height: int = 80, render: bool = True, hfov_deg: float = 90.0,
+                 camera_height: float = 1.6, pitch_deg: float = 0.0, position_jitter: float = 0.2,
+                 background_vehicles_per_hour: float = 0.0, background_pedestrians_per_hour: float = 0.0,
+                 background_warmup_s: float = 30.0, pedestrians: str = "scripted", net_file: str | None = None,
+                 route: str | None = None, depart_pos: float = 0.0, cache_dir: str | None = None):
+        _check_options(locals())
+        self.render = render
+        self.position_jitter = float(position_jitter)
+        self.density = TrafficDensity(float(background_vehicles_per_hour), float(background_pedestrians_per_hour))
+        self.warmup_steps = int(round(float(background_warmup_s) / self.dt)) if not self.density.empty else 0
+        self.pedestrians = pedestrians
+        self.user_net = None
+        if net_file is not None:
+            from .usernet import UserNetwork
+
+            self.user_net = UserNetwork.from_options(net_file, route, float(depart_pos))
+        self.cache_dir = Path(cache_dir) if cache_dir else network.default_cache_dir()
+        self.camera = Camera(width, height, hfov_deg, mount_height=camera_height, pitch_deg=pitch_deg)
+        self._blank = np.zeros((height, width, 3), dtype=np.uint8)
+        self._blank.flags.writeable = False
+        self.session = SumoSession(self)
+        self._release = weakref.finalize(self, self.session.close)
+        self.libsumo = self.session.libsumo
+        self.netconvert = netconvert_binary()
+        self.sumo_version = sumo_version(self.libsumo)
+        self._worlds: dict[str, World] = {}
+        self.scenario: Scenario | None = None
+        self._terminal: str | None = None
+        self._sizes: dict[str, tuple[float, float, float]] = {}
+
+    # -- protocol -----------------------------------------------------------------------------------
+    def reset(self, scenario: Scenario, seed: int) -> Observation:
+        """Start an episode of ``scenario``; ``seed`` seeds SUMO and jitters pedestrians' start."""
+        check_supported(scenario)
+        world = self._world(scenario)
+        if self.pedestrians == "sumo":
+            from .persons import check_walkable
+
+            check_walkable(scenario, world)
+        self.scenario, self.world, self.road = scenario, world, world.road
+        rng = episode_rng(seed, "simulator")
+        self.users = []
+        for spec in scenario.actors:
+            shift = 0.0
+            if spec.kind in JITTERED_KINDS and self.position_jitter > 0:
+                shift = float(rng.uniform(-self.position_jitter, self.position_jitter))
+            self.users.append(ScriptedUser.at_start(spec, shift))
+        sumo_seed = int(episode_rng(seed, "sumo").integers(0, 2**31 - 1))
+        args = ["-n", str(world.net), "--seed", str(sumo_seed), *SUMO_OPTIONS]
+        if world.routes is not None:
+            args += ["-r", str(world.routes)]
+        self.session.begin(args, f"scenario {scenario.source or scenario.id}")
+        sumo = self.libsumo
+        self._sizes.clear()
+        self._ego_links, self._light_state = self._freeze_light(scenario, world)
+        for _ in range(self.warmup_steps):
+            sumo.simulationStep()
+        route = self.road.route
+        x, y = (float(v) for v in route.position(0.0))
+        self.ego = EgoState(x, y, float(route.heading(0.0)), scenario.ego.speed, 0.0,
+                            bicycle.EGO_LENGTH, bicycle.EGO_WIDTH)
+        self._clear_start()
+        self._add_ego()
+        self._native = None
+        if self.pedestrians == "sumo":
+            from .persons import NativePersons
+
+            self._native = NativePersons(sumo, scenario, world, self.users)
+        self._add_road_users()
+        self.truth = TruthTracker(scenario, self.road)
+        self.step_index = 0
+        self._terminal = None
+        self._place()
+        sumo.simulationStep()
+        return self._observe()
+
+    def step(self, control: Control) -> Observation:
+        """Advance one step (see the module docstring for the order of events)."""
+        if self.scenario is None:
+            raise RuntimeError("SumoSimulator.step() called before reset()")
+        if self._terminal is not None:
+            raise RuntimeError(f"the episode has ended ({self._terminal}); call reset() to start another")
+        self.ego = bicycle.apply_control(self.ego, control, self.dt)
+        self._move_users()
+        self._place()
+        self.libsumo.simulationStep()
+        self.step_index += 1
+        return self._observe()
+
+    def close(self) -> None:
+        """End the SUMO simulation (another simulator may then start one in this process)."""
+        self._release()
+
+    # -- the world ----------------------------------------------------------------------------------
+    def _world(self, scenario: Scenario) -> World:
+        key = repr(scenario.to_json())
+        if key not in self._worlds:
+            self._worlds[key] = self._build_world(scenario)
+        return self._worlds[key]
+
+    def _build_world(self, scenario: Scenario) -> World:
+        what = f"scenario {scenario.source or scenario.id}"
+        if self.user_net is not None:
+            road, net, ends, sidewalks, edges, lane, tls, approach = self.user_net.world(scenario, self.libsumo)
+            crossing_nodes: dict[str, str] = {}
+        else:
+            road = build_road(scenario)
+            plan = network.plan_network(scenario, road)
+            net = network.build_network(plan, self.netconvert, self.sumo_version, self.cache_dir, what)
+            ends, sidewalks, edges, lane = plan.ends, plan.has_sidewalks, plan.route, plan.ego_lane
+            tls, approach, crossing_nodes = plan.tls, plan.feature_approach, dict(plan.crossing_nodes)
+        routes = None
+        if not self.density.empty:
+            text = routes_xml(ends, self.density, sidewalks)
+            routes = _cached_text(self.cache_dir, text, ".rou.xml")
+        return World(road, net, routes, tuple(edges), lane, tls, approach, crossing_nodes)
+
+    def _freeze_light(self, scenario: Scenario, world: World) -> tuple[list[int], str | None]:
+        """Freeze the scenario's light in SUMO; returns the ego's link indices and the frozen state."""
+        if scenario.light is None or world.tls is None:
+            return [], None
+        tl = self.libsumo.trafficlight
+        links = tl.getControlledLinks(world.tls)
+        ego_links = [i for i, group in enumerate(links)
+                     if group and group[0][0].rsplit("_", 1)[0] == world.approach]
+        phases = [p.state for p in tl.getAllProgramLogics(world.tls)[0].phases]
+        state = frozen_state(phases, ego_links, scenario.light.state)
+        tl.setRedYellowGreenState(world.tls, state)
+        return ego_links, state
+
+    def light_colour(self) -> str | None:
+        """The colour SUMO's traffic light shows the ego now (``None`` without a light)."""
+        if not self._ego_links:
+            return None
+        return ego_colour(self.libsumo.trafficlight.getRedYellowGreenState(self.world.tls), self._ego_links)
+
+    def _clear_start(self) -> None:
+        """Remove warm-up traffic where the ego appears, so that the episode does not begin in a crash."""
+        sumo = self.libsumo
+        for vid in sumo.vehicle.getIDList():
+            x, y = sumo.vehicle.getPosition(vid)
+            if math.hypot(x - self.ego.x, y - self.ego.y) < START_CLEARANCE:
+                sumo.vehicle.remove(vid)
+        for pid in sumo.person.getIDList():
+            x, y = sumo.person.getPosition(pid)
+            if math.hypot(x - self.ego.x, y - self.ego.y) < PERSON_CLEARANCE:
+                sumo.person.remove(pid)
+
+    def _add_ego(self) -> None:
+        sumo = self.libsumo
+        vtype = sumo.vehicletype
+        vtype.copy("DEFAULT_VEHTYPE", EGO_ID)
+        vtype.setVehicleClass(EGO_ID, "passenger")
+        vtype.setLength(EGO_ID, bicycle.EGO_LENGTH)
+        vtype.setWidth(EGO_ID, bicycle.EGO_WIDTH)
+        vtype.setMinGap(EGO_ID, 0.0)
+        sumo.route.add(EGO_ID, list(self.world.route_edges))
+        sumo.vehicle.add(EGO_ID, EGO_ID, typeID=EGO_ID, depart="now", departLane=str(self.world.ego_lane),
+                         departSpeed="0")
+
+    def _add_road_users(self) -> None:
+        """Every scenario road user as a SUMO person (pedestrian, animal) or vehicle (car)."""
+        sumo = self.libsumo
+        route = self.road.route
+        for user in self.users:
+            spec = user.spec
+            sumo_id = ACTOR_PREFIX + spec.id
+            actor = user.actor(route)
+            type_id = sumo_id
+            if spec.kind in PERSON_KINDS:
+                vtype = "DEFAULT_PEDTYPE"
+            else:
+                vtype = "DEFAULT_VEHTYPE"
+            sumo.vehicletype.copy(vtype, type_id)
+            sumo.vehicletype.setLength(type_id, spec.length)
+            sumo.vehicletype.setWidth(type_id, spec.width)
+            sumo.vehicletype.setHeight(type_id, spec.height)
+            if spec.kind in PERSON_KINDS:
+                if self._native is not None and self._native.handles(spec.id):
+                    self._native.add(user, type_id)
+                    continue
+                edge, pos, _ = sumo.simulation.convertRoad(actor.x, actor.y, False, "pedestrian")
+                sumo.person.add(sumo_id, edge, pos, typeID=type_id)
+                sumo.person.appendWaitingStage(sumo_id, 1e7)
+            else:
+                edge, pos, lane = sumo.simulation.convertRoad(actor.x, actor.y, False, "passenger")
+                sumo.route.add(sumo_id, [edge])
+                sumo.vehicle.add(sumo_id, sumo_id, typeID=type_id, depart="now", departLane=str(lane),
+                                 departPos=f"{pos:.3f}", departSpeed="0")
+
+    # -- per step -----------------------------------------------------------------------------------
+    def _move_users(self) -> None:
+        front = self.truth.ego_s(self.ego) + self.ego.length / 2
+        route = self.road.route
+        for user in self.users:
+            started = user.check_trigger(front)
+            if self._native is not None and self._native.handles(user.spec.id):
+                if started:
+                    self._native.start(user)
+                continue
+            user.advance(route, self.ego, self.dt)
+
+    def _place(self) -> None:
+        """Place the ego and the scripted road users in SUMO for the coming step."""
+        sumo = self.libsumo
+        ego = self.ego
+        fx, fy = ego.to_world_frame(ego.length / 2, 0.0)
+        sumo.vehicle.moveToXY(EGO_ID, "", self.world.ego_lane, fx, fy, _sumo_angle(ego.yaw), 2)
+        route = self.road.route
+        for user in self.users:
+            spec = user.spec
+            if self._native is not None and self._native.handles(spec.id):
+                continue
+            actor = user.actor(route)
+            sumo_id = ACTOR_PREFIX + spec.id
+            if spec.kind in PERSON_KINDS:
+                sumo.person.moveToXY(sumo_id, "", actor.x, actor.y, _sumo_angle(actor.yaw), 2)
+            else:
+                front = (actor.x + math.cos(actor.yaw) * actor.length / 2,
+                         actor.y + math.sin(actor.yaw) * actor.length / 2)
+                sumo.vehicle.moveToXY(sumo_id, "", -1, front[0], front[1], _sumo_angle(actor.yaw), 2)
+
+    def sumo_actors(self) -> tuple[Actor, ...]:
+        """Every road user in SUMO now (scenario users under their ids, background ones under SUMO's)."""
+        sumo = self.libsumo
+        out = []
+        specs = {ACTOR_PREFIX + u.spec.id: u.spec for u in self.users}
+        for vid in sumo.vehicle.getIDList():
+            if vid == EGO_ID:
+                continue
+            x, y = sumo.vehicle.getPosition(vid)
+            yaw = _yaw(sumo.vehicle.getAngle(vid))
+            length, width, height = self._size(vid, specs, vehicle=True)
+            cx, cy = x - math.cos(yaw) * length / 2, y - math.sin(yaw) * length / 2
+            out.append(self._actor(vid, specs, "car", cx, cy, yaw, length, width, height,
+                                   sumo.vehicle.getSpeed(vid)))
+        for pid in sumo.person.getIDList():
+            x, y = sumo.person.getPosition(pid)
+            yaw = _yaw(sumo.person.getAngle(pid))
+            length, width, height = self._size(pid, specs, vehicle=False)
+            out.append(self._actor(pid, specs, "pedestrian", x, y, yaw, length, width, height,
+                                   sumo.person.getSpeed(pid)))
+        return tuple(out)
+
+    def _actor(self, sumo_id: str, specs: dict, kind: str, x: float, y: float, yaw: float, length: float,
+               width: float, height: float, speed: float) -> Actor:
+        spec = specs.get(sumo_id)
+        if spec is not None:
+            return Actor(spec.id, spec.kind, x, y, yaw, length, width, height, max(float(speed), 0.0))
+        return Actor(sumo_id, kind, x, y, yaw, length, width, height, max(float(speed), 0.0))
+
+    def _size(self, sumo_id: str, specs: dict, vehicle: bool) -> tuple[float, float, float]:
+        spec = specs.get(sumo_id)
+        if spec is not None:
+            return spec.length, spec.width, spec.height
+        domain = self.libsumo.vehicle if vehicle else self.libsumo.person
+        type_id = domain.getTypeID(sumo_id)
+        if type_id not in self._sizes:
+            vt = self.libsumo.vehicletype
+            self._sizes[type_id] = (vt.getLength(type_id), vt.getWidth(type_id), vt.getHeight(type_id))
+        return self._sizes[type_id]
+
+    def sumo_collisions(self) -> tuple[str, ...]:
+        """Actor ids SUMO reports colliding with the ego this step."""
+        out = []
+        for c in self.libsumo.simulation.getCollisions():
+            if EGO_ID not in (c.collider, c.victim):
+                continue
+            other = c.victim if c.collider == EGO_ID else c.collider
+            out.append(other[len(ACTOR_PREFIX):] if other.startswith(ACTOR_PREFIX) else other)
+        return tuple(out)
+
+    def _observe(self) -> Observation:
+        actors = self.sumo_actors()
+        collisions = tuple(dict.fromkeys(colliding(self.ego, actors) + self.sumo_collisions()))
+        truth = self.truth.observe(self.step_index, self.ego, actors, collisions)
+        self._terminal = truth.terminal
+        image = self.camera.render(self.road, self.ego, truth.actors) if self.render else self._blank
+        return Observation(step=self.step_index, time=truth.time, image=image, ego=self.ego,
+                           command=self.scenario.command, ground_truth=truth, scenario_id=self.scenario.id)
+
+
+def _sumo_angle(yaw: float) -> float:
+    """World yaw (rad, counter-clockwise from east) → SUMO angle (degrees, clockwise from north)."""
+    return (90.0 - math.degrees(yaw)) % 360.0
+
+
+def _yaw(angle: float) -> float:
+    """SUMO angle → world yaw in (-π, π]."""
+    return math.remainder(math.radians(90.0 - angle), 2 * math.pi)
+
+
+def _cached_text(cache_dir: Path, text: str, suffix: str) -> Path:
+    import hashlib
+    import os
+    import tempfile
+
+    target = Path(cache_dir) / f"{hashlib.sha256(text.encode()).hexdigest()[:24]}{suffix}"
+    if not target.exists():
+        target.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=target.parent, suffix=".tmp")
+        with os.fdopen(fd, "w", encoding="utf-8") as handle:
+            handle.write(text)
+        os.replace(tmp, target)
+    return target
+
+
+def check_supported(scenario: Scenario) -> None:
+    """Raise a one-line :class:`ScenarioError` if the scenario needs a feature SUMO cannot represent."""
+    missing = sorted(scenario.features() - SUPPORTED_FEATURES)
+    if missing:
+        where = scenario.source or scenario.id
+        raise ScenarioError(
+            f"scenario {where}: simulator 'sumo' cannot represent {missing[0]!r} "
+            f"(it supports: {', '.join(sorted(SUPPORTED_FEATURES))})"
+        )
+
+
+def _check_options(values: dict[str, Any]) -> None:
+    """One-line :class:`ConfigError` for the first bad option."""
+    def fail(name: str, expected: str) -> ConfigError:
+        return ConfigError(f"simulator 'sumo': option {name} must be {expected}, got {values[name]!r}")
+
+    for name, low, high in (("width", 8, 4096), ("height", 8, 4096)):
+        value = values[name]
+        if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
+            raise fail(name, f"a whole number between {low} and {high}")
+    if not isinstance(values["render"], bool):
+        raise fail("render", "true or false")
+    for name, low, high in (("hfov_deg", 10.0, 170.0), ("camera_height", 0.2, 10.0), ("pitch_deg", -30.0, 60.0),
+                            ("position_jitter", 0.0, 2.0), ("background_vehicles_per_hour", 0.0, 20000.0),
+                            ("background_pedestrians_per_hour", 0.0, 20000.0),
+                            ("background_warmup_s", 0.0, 3600.0), ("depart_pos", 0.0, 1e6)):
+        value = values[name]
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not low <= value <= high:
+            raise fail(name, f"a number between {low:g} and {high:g}")
+    if values["pedestrians"] not in PEDESTRIAN_MODELS:
+        raise fail("pedestrians", " or ".join(repr(m) for m in PEDESTRIAN_MODELS))
+    for name in ("net_file", "route", "cache_dir"):
+        value = values[name]
+        if value is not None and (not isinstance(value, str) or not value.strip()):
+            raise fail(name, "a non-empty string")
+    if (values["net_file"] is None) != (values["route"] is None):
+        missing = "route" if values["route"] is None else "net_file"
+        given = "net_file" if missing == "route" else "route"
+        raise ConfigError(f"simulator 'sumo': option {given} needs option {missing} too "
+                          "(a SUMO network and the ego's route through it: route=edge1,edge2,...)")
