@@ -21,7 +21,8 @@ from .common import IMAGE_HEIGHT, IMAGE_WIDTH, image_batch
 from .expert import ExpertDriver, counterfactual, rollout_controls, sentence_cot, slot_cot
 from .kv_model import rollout
 
-TRAIN_FAMILIES = ("pedestrian", "stopped_car", "traffic_light", "stop_sign", "baseline", "intervention")
+TRAIN_FAMILIES = ("pedestrian", "stopped_car", "traffic_light", "stop_sign", "baseline")
+"""Families the models learn from; the intervention routes (E.1, E.2, SAFE.*) are held out for evaluation."""
 SCENERIES = ("plain", "suburban", "urban")
 
 
@@ -153,9 +154,15 @@ def generate(seed: int, episodes: int, every: int = 2, scenarios: Iterable | Non
     return _to_dataset(rows)
 
 
+def _encoder_sized(image: np.ndarray) -> np.ndarray:
+    if image.shape[:2] == (IMAGE_HEIGHT, IMAGE_WIDTH):
+        return np.asarray(image, dtype=np.uint8)
+    resized = image_batch([image])[0].permute(1, 2, 0).numpy()
+    return (resized * 255.0 + 0.5).astype(np.uint8)
+
+
 def _to_dataset(rows: list[dict]) -> Dataset:
-    images = image_batch([r["image"] for r in rows]) if rows else None
-    images_u8 = (images.permute(0, 2, 3, 1).numpy() * 255.0 + 0.5).astype(np.uint8)
+    images_u8 = np.stack([_encoder_sized(r["image"]) for r in rows])
     controls = np.stack([r["controls"] for r in rows])
     speeds = np.array([r["speed"] for r in rows], dtype=np.float64)
     waypoints = np.stack([

@@ -1,0 +1,98 @@
+"""Regenerate the result tables of this plugin's README with ``vdb`` commands (nothing is typed by hand).
+
+    python -m vdb_model_neural.results --out runs/neural [--quick]
+
+Each experiment is one ``vdb`` command (printed before it runs); its stdout is pasted verbatim into the
+README between ``<!-- results:NAME -->`` and ``<!-- /results:NAME -->``. Output directories are resumed,
+so an interrupted regeneration redoes only what is missing.
+"""
+
+from __future__ import annotations
+
+import argparse
+import re
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+README = Path(__file__).resolve().parent.parent / "README.md"
+OL_CONDITIONS = "selfsplice,accel,pedestrian,car"
+QA_CONDITIONS = ("selfsplice,accel,pedestrian,car,red-light,origbrake,origbrake-shuffle,depicts-all,"
+                 "depicts-10,depicts-50,depicts-150")
+
+
+def experiments(seeds: dict[str, int]) -> list[tuple[str, list[list[str]]]]:
+    """(README section, the vdb commands whose stdout fills it)."""
+    ol, cl, safety, suite = seeds["open"], seeds["closed"], seeds["safety"], seeds["suite"]
+    return [
+        ("kv-open-loop", [
+            ["intervene", "--model", "kv", "--controller", "mpc", "--route", "E.1", "--mode", "open-loop",
+             "--conditions", OL_CONDITIONS, "--seeds", str(ol), "--batch-conditions", "--out", "{out}/kv-ol-e1"],
+            ["intervene", "--model", "kv", "--controller", "mpc", "--route", "E.2", "--mode", "open-loop",
+             "--conditions", OL_CONDITIONS, "--seeds", str(ol), "--batch-conditions", "--out", "{out}/kv-ol-e2"],
+        ]),
+        ("qa-open-loop", [
+            ["intervene", "--model", "qa", "--controller", "pid", "--route", "E.1", "--mode", "open-loop",
+             "--conditions", QA_CONDITIONS, "--seeds", str(ol), "--out", "{out}/qa-ol-e1"],
+        ]),
+        ("kv-closed-loop", [
+            ["intervene", "--model", "kv", "--controller", "mpc", "--route", "E.1", "--mode", "closed-loop",
+             "--conditions", OL_CONDITIONS, "--seeds", str(cl), "--out", "{out}/kv-cl-e1"],
+        ]),
+        ("kv-safety", [
+            ["intervene", "--model", "kv", "--controller", "mpc", "--route", route, "--mode", "safety",
+             "--seeds", str(safety), "--out", f"{{out}}/kv-safety-{route.split('.')[1]}"]
+            for route in ("SAFE.kerb-ped", "SAFE.centre-ped", "SAFE.car")
+        ]),
+        ("suite", [
+            ["run", "--model", model, "--controller", controller, "--scenarios", "all", "--seeds", str(suite),
+             "--out", "{out}/suite", "--quiet"]
+            for model, controller in (("kv", "mpc"), ("qa", "pid"), ("scripted", "pid"))
+        ] + [["label", "{out}/suite"], ["metrics", "{out}/suite"]]),
+    ]
+
+
+def run_vdb(args: list[str]) -> str:
+    command = [sys.executable, "-m", "vladrivebench.cli", *args]
+    print("$ vdb " + " ".join(args), file=sys.stderr, flush=True)
+    started = time.perf_counter()
+    done = subprocess.run(command, capture_output=True, text=True)
+    print(f"  ({time.perf_counter() - started:.0f} s, exit {done.returncode})", file=sys.stderr, flush=True)
+    if done.returncode not in (0, 3):  # 3: completed but the selfsplice gate failed — shown, not hidden
+        raise SystemExit(f"vdb {' '.join(args)} failed: {done.stderr.strip().splitlines()[-1:]}")
+    return done.stdout.rstrip() + ("\n" + done.stderr.strip().splitlines()[-1] if done.returncode == 3 else "")
+
+
+def fill(readme: str, name: str, body: str) -> str:
+    pattern = re.compile(rf"(<!-- results:{re.escape(name)} -->\n).*?(<!-- /results:{re.escape(name)} -->)", re.S)
+    if not pattern.search(readme):
+        raise SystemExit(f"{README}: no <!-- results:{name} --> … <!-- /results:{name} --> block")
+    return pattern.sub(lambda m: m.group(1) + body + "\n" + m.group(2), readme)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--out", type=Path, required=True)
+    parser.add_argument("--only", help="Comma-separated sections to regenerate (default: all).")
+    parser.add_argument("--quick", action="store_true", help="Fewer seeds (a smoke run; tables are noisier).")
+    args = parser.parse_args()
+    seeds = ({"open": 3, "closed": 3, "safety": 2, "suite": 1} if args.quick
+             else {"open": 7, "closed": 5, "safety": 4, "suite": 2})
+    only = set(args.only.split(",")) if args.only else None
+    for name, commands in experiments(seeds):
+        if only and name not in only:
+            continue
+        outputs = []
+        for command in commands:
+            argv = [a.replace("{out}", str(args.out)) for a in command]
+            text = run_vdb(argv)
+            shown = " ".join(a.replace(str(args.out), "OUT") for a in argv)
+            outputs.append(f"$ vdb {shown}\n{text}")
+        body = "```text\n" + "\n\n".join(outputs) + "\n```"
+        README.write_text(fill(README.read_text(), name, body))
+        print(f"README section {name} updated", file=sys.stderr)
+
+
+if __name__ == "__main__":
+    main()
