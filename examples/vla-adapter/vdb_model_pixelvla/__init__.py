@@ -1,0 +1,1 @@
+"""An example third-party VLA adapter (see README.md)."""
