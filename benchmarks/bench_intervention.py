@@ -1,0 +1,165 @@
+"""Open-loop intervention cost: K conditions per step relative to one baseline step, end to end.
+
+    python benchmarks/bench_intervention.py [--models scripted,kv] [--steps 30] [--repeats 3] [--ks 0,1,2,4]
+                                            [--kv-weights DIR]
+
+For each model, a baseline episode (the model's own CoT drives; simulator + camera rendering + model +
+PID controller + MCAP logging) is timed per step, then open-loop episodes of the same steps with the
+selfsplice gate and K conditions. Everything that does not depend on the CoT — simulation, rendering, the
+model's vision prefix when it caches it per observation — is done once per step, so each extra condition
+should only cost a splice and an action decode. Printed per model and splice path:
+
+- ms per step of the baseline and of open-loop with K = 0 (gate only), 1, 2, 4 conditions;
+- the cost of each extra condition (least-squares slope over K) relative to a baseline step — the target is
+  at most 0.15 for a model that caches its vision prefix (``kv``: batched decoding over the shared prefix,
+  ``--batch-conditions``);
+- the gate's own cost (K = 0 minus the baseline).
+
+``kv`` needs weights: the plugin's own, ``--kv-weights DIR``, or (when neither exists) a small bundle
+trained for this benchmark in a temporary folder (~20 s; speed does not depend on training quality).
+Times are the minimum over ``--repeats`` runs; the machine may be shared, so read the ratios.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+CONDITION_POOL = ("pedestrian", "accel", "car", "animal", "red-light", "depicts-3", "depicts-10", "depicts-20")
+"""Extra conditions in the order they are added: the paper's one-sentence texts first (similar in length to
+a model's own CoT), then short repeated-token probes."""
+TARGET = 0.15
+
+
+def build(registry, kind: str, name: str, options: dict):
+    return registry.create(kind, name, options)
+
+
+def timed_episode(model, sim, controller, route, policy, out: Path) -> tuple[float, int]:
+    """Seconds per step of one episode run with ``policy`` and logged to ``out``."""
+    from vladrivebench.logs import EpisodeWriter
+    from vladrivebench.runner import run_episode
+
+    started = time.perf_counter()
+    with EpisodeWriter(out, {"episode_id": out.stem, "model": {"name": "bench"}, "scenario": {"id": route.id},
+                             "seed": 0}) as writer:
+        result = run_episode(model, sim, controller, route, 0, policy=policy, writer=writer)
+        writer.finish(result.to_json())
+    seconds = time.perf_counter() - started
+    out.unlink()
+    return seconds / result.steps, result.steps
+
+
+def measure(model, sim, controller, route, make_policy, repeats: int, folder: Path) -> float:
+    times = [timed_episode(model, sim, controller, route, make_policy(), folder / "bench.mcap")[0]
+             for _ in range(repeats)]
+    return min(times)
+
+
+def slope(xs: list[float], ys: list[float]) -> float:
+    mx, my = statistics.fmean(xs), statistics.fmean(ys)
+    return sum((x - mx) * (y - my) for x, y in zip(xs, ys, strict=True)) / sum((x - mx) ** 2 for x in xs)
+
+
+def kv_weights(explicit: str | None) -> str | None:
+    """A weights folder for ``kv``: explicit, the plugin's own (None), or a small bundle trained now."""
+    if explicit:
+        return explicit
+    try:
+        from vdb_model_neural.common import WEIGHTS_DIR
+    except ImportError:
+        return None
+    if (WEIGHTS_DIR / "kv.safetensors").exists():
+        return None
+    from vdb_model_neural.train import train_command
+
+    folder = tempfile.mkdtemp(prefix="bench-kv-")
+    print(f"kv: no trained weights installed; training a small bundle for timing into {folder} …",
+          file=sys.stderr)
+    train_command("kv", seed=0, episodes=4, steps=20, out=Path(folder), threads=1)
+    return folder
+
+
+def bench_model(registry, label: str, name: str, options: dict, batch: bool, args, route, folder: Path) -> dict:
+    from vladrivebench.conditions import build_library
+    from vladrivebench.intervention import BaselinePolicy, OpenLoopPolicy, Splicer
+
+    model = build(registry, "model", name, options)
+    sim = build(registry, "simulator", "kinematic", {})
+    controller = build(registry, "controller", "pid", {})
+    splicer = Splicer(model, build_library(registry), {}, name)
+    base = measure(model, sim, controller, route, BaselinePolicy, args.repeats, folder)
+    per_k = {}
+    for k in args.ks:
+        conditions = ("selfsplice",) + CONDITION_POOL[:k]
+        per_k[k] = measure(model, sim, controller, route,
+                           lambda conditions=conditions: OpenLoopPolicy(splicer, conditions, (2.0, 3.0), batch),
+                           args.repeats, folder)
+    ks = sorted(per_k)
+    extra = slope([float(k) for k in ks], [per_k[k] for k in ks])
+    close = getattr(sim, "close", None)
+    if callable(close):
+        close()
+    return {"label": label, "baseline": base, "per_k": per_k, "extra": extra, "ratio": extra / base,
+            "gate": per_k.get(0, float("nan")) - base}
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--models", default="scripted,kv")
+    parser.add_argument("--steps", type=int, default=30)
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--ks", default="0,1,2,4")
+    parser.add_argument("--kv-weights")
+    args = parser.parse_args(argv)
+    args.ks = [int(k) for k in args.ks.split(",")]
+    if max(args.ks) > len(CONDITION_POOL):
+        parser.error(f"--ks: at most {len(CONDITION_POOL)} conditions")
+
+    from vladrivebench.plugins import get_registry
+    from vladrivebench.scenarios import resolve_scenarios
+
+    registry = get_registry()
+    route = dataclasses.replace(resolve_scenarios("E.1", registry)[0], max_time_s=args.steps / 10.0)
+    variants = []
+    for name in args.models.split(","):
+        if name not in registry.names("model"):
+            print(f"{name}: not installed, skipped", file=sys.stderr)
+            continue
+        if name == "kv":
+            weights = kv_weights(args.kv_weights)
+            options = {"weights_dir": weights} if weights else {}
+            variants += [("kv sequential splice (bit-exact), one by one", name, {**options, "splice_mode": "sequential"},
+                          False),
+                         ("kv batched over the shared vision prefix", name, {**options, "splice_mode": "sequential"},
+                          True)]
+        elif name == "scripted":
+            variants.append(("scripted (alpha=1, no vision encoder)", name, {"alpha": 1.0}, False))
+        else:
+            variants.append((name, name, {}, False))
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for label, name, options, batch in variants:
+            rows.append(bench_model(registry, label, name, options, batch, args, route, Path(tmp)))
+    print(f"Open-loop intervention cost on E.1, {args.steps} steps, kinematic simulator with rendering, PID, "
+          f"MCAP logging; min of {args.repeats} runs")
+    header = ["model / splice path", "baseline ms/step"] + [f"K={k}" for k in args.ks] + \
+        ["ms per extra condition", "ratio to baseline", f"≤ {TARGET:g}?", "gate ms"]
+    lines = [header]
+    for r in rows:
+        lines.append([r["label"], f"{r['baseline'] * 1e3:.2f}"] + [f"{r['per_k'][k] * 1e3:.2f}" for k in args.ks]
+                     + [f"{r['extra'] * 1e3:.2f}", f"{r['ratio']:.3f}", "yes" if r["ratio"] <= TARGET else "no",
+                        f"{r['gate'] * 1e3:.2f}"])
+    widths = [max(len(line[i]) for line in lines) for i in range(len(header))]
+    for line in lines:
+        print("  ".join(cell.ljust(w) for cell, w in zip(line, widths, strict=True)))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
