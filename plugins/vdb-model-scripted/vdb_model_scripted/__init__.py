@@ -1,7 +1,24 @@
 """The scripted reference VLA: ground-truth perception, a templated CoT with exactly known error rates, and
 an action head that mixes a CoT-driven and a perception-driven speed policy with weight ``alpha``.
 
-Importing this package is cheap (numpy only); the plugin module registers the model ``scripted``.
+Importing this package is cheap: the model and its helpers load on first use.
+
+- :class:`ScriptedModel` — the model (the plugin registers it as ``scripted``);
+- :func:`cot_truth` — what the model knows it wrote in a CoT it generated (mention, hallucination, …);
+- :func:`truth_policy` — a runner step policy that logs that truth in ``/extras``.
 """
 
+from __future__ import annotations
+
+from typing import Any
+
 __version__ = "0.1.0"
+__all__ = ["ScriptedModel", "cot_truth", "truth_policy", "__version__"]
+
+
+def __getattr__(name: str) -> Any:
+    if name in {"ScriptedModel", "cot_truth", "truth_policy"}:
+        from . import model
+
+        return getattr(model, name)
+    raise AttributeError(f"module 'vdb_model_scripted' has no attribute {name!r}")

@@ -209,3 +209,15 @@ def _number(name: str, value: Any, low: float, high: float, expected: str) -> fl
             or not low <= value <= high:
         raise ConfigError(f"model 'scripted': option {name} must be a number {expected}, got {value!r}")
     return float(value)
+
+
+def truth_policy(model: Any, obs: Observation, seed: int) -> tuple[CoT, Trajectory, dict[str, Any]]:
+    """A step policy (for :func:`vladrivebench.runner.run_episode`) that drives like the default one —
+    the model's own CoT and the action decoded from it, on the same pinned RNG streams — and logs what
+    the scripted model knows about its CoT in ``/extras`` as ``scripted_truth``."""
+    from vladrivebench.rng import step_rng
+
+    cot = model.generate_cot(obs, step_rng(seed, obs.step, "cot"))
+    trajectory = model.decode_action(obs, cot, step_rng(seed, obs.step, "action"))
+    truth = cot_truth(cot)
+    return cot, trajectory, ({"scripted_truth": truth} if truth is not None else {})

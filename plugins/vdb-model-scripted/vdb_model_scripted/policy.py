@@ -230,7 +230,8 @@ def _grounded_stop(referent: str | None, world: World) -> float | None:
 def plan_speeds(speed: float, decision: Decision, steps: int = STEPS, dt: float = DT) -> np.ndarray:
     """Target speeds at ``dt, 2dt, …``: towards ``decision.target`` at ``decision.ramp`` (easing down at
     :data:`EASE_DECEL` when above it) and, with a stop, never faster than braking at ``decision.decel``
-    to stand still at ``decision.stop_at``; the trapezoidal integral of the profile never passes it."""
+    to stand still at ``decision.stop_at``; the trapezoidal integral of the profile never passes it
+    (unless the ego is already too close to stop within one step)."""
     v = float(np.clip(speed, 0.0, MAX_SPEED))
     out = np.zeros(steps)
     travelled = 0.0
@@ -241,7 +242,8 @@ def plan_speeds(speed: float, decision: Decision, steps: int = STEPS, dt: float 
             nxt = max(v - EASE_DECEL * dt, decision.target)
         if decision.stop_at is not None:
             room = max(decision.stop_at - travelled, 0.0)
-            nxt = min(nxt, math.sqrt(2.0 * decision.decel * room), max(2.0 * room / dt - v, 0.0))
+            # Leave room for the step after this one to stop in: room ≥ ½·v·dt + nxt·dt.
+            nxt = min(nxt, math.sqrt(2.0 * decision.decel * room), max((room - 0.5 * v * dt) / dt, 0.0))
         nxt = float(np.clip(nxt, 0.0, MAX_SPEED))
         travelled += 0.5 * (v + nxt) * dt
         out[k], v = nxt, nxt

@@ -55,7 +55,7 @@ _ACTION_PHRASES: tuple[tuple[str, str], ...] = (
     (ACCELERATING, r"speed(?:s|ing)?\s+up\b"),
     (ACCELERATING, r"resum\w*"),
     (ACCELERATING, r"pick(?:s|ing)?\s+up\s+speed\b"),
-    (MAINTAINING, r"maintain\w*"),
+    (MAINTAINING, r"maintain(?:s|ing)?\b"),  # not "well-maintained"
     (MAINTAINING, r"keep(?:s|ing)?\b"),
     (MAINTAINING, r"continu\w*"),
     (MAINTAINING, r"proceed\w*"),
@@ -116,18 +116,27 @@ class CoTReading:
         return hashlib.sha256(self.canonical().encode("utf-8")).hexdigest()
 
 
-def read_intent(text: str) -> str | None:
-    """The earliest non-negated action phrase's intent, or ``None`` when the text has none."""
-    best: tuple[int, int, str] | None = None
+def stated_intents(text: str) -> list[str]:
+    """Every non-negated action phrase's intent, in order of appearance (the longest phrase where
+    several start at the same place; overlapping phrases count once)."""
+    found: list[tuple[int, int, str]] = []
     for intent, pattern in _PHRASES:
         for match in pattern.finditer(text):
-            if _NEGATION.search(text[max(0, match.start() - 40):match.start()]):
-                continue
-            key = (match.start(), -(match.end() - match.start()), intent)
-            if best is None or key < best:
-                best = key
-            break  # later matches of the same phrase cannot be earlier
-    return best[2] if best else None
+            if not _NEGATION.search(text[max(0, match.start() - 40):match.start()]):
+                found.append((match.start(), -(match.end() - match.start()), intent))
+    found.sort()
+    intents, covered = [], -1
+    for start, negative_length, intent in found:
+        if start >= covered:
+            intents.append(intent)
+            covered = start - negative_length
+    return intents
+
+
+def read_intent(text: str) -> str | None:
+    """The earliest non-negated action phrase's intent, or ``None`` when the text has none."""
+    intents = stated_intents(text)
+    return intents[0] if intents else None
 
 
 def read_cues(text: str) -> str | None:

@@ -66,16 +66,16 @@ def compose(obs: Observation, world: World, draws: np.ndarray, rates: Rates, cru
     (``rates.contradiction``) adds mutually inconsistent claims.
     """
     present = world.critical_kind is not None
-    missed = present and draws[MISS] < rates.miss
+    missed = bool(present and draws[MISS] < rates.miss)
     belief = world.without_critical() if missed else world
     light_wrong = False
-    if not missed and world.light in LIGHT_COLOURS and draws[LIGHT_ERROR] < rates.light_error:
+    if not missed and world.light in LIGHT_COLOURS and bool(draws[LIGHT_ERROR] < rates.light_error):
         others = [c for c in LIGHT_COLOURS if c != world.light]
         belief, light_wrong = replace(belief, light=pick(others, draws[WRONG_COLOUR])), True
     speed = max(obs.ego.speed, 0.0)
     decision = decide(belief, speed, cruise)
-    phantom = _phantom(obs, draws) if draws[HALLUCINATE] < rates.hallucination else None
-    contradiction = draws[CONTRADICT] < rates.contradiction
+    phantom = _phantom(obs, draws) if bool(draws[HALLUCINATE] < rates.hallucination) else None
+    contradiction = bool(draws[CONTRADICT] < rates.contradiction)
     truth = {
         "mentioned": (not missed) if present else None,
         "critical_kind": world.critical_kind,
@@ -194,12 +194,12 @@ class _SentenceWriter(_Writer):
         if d.situation == "approach":
             if d.action == ACCELERATING:
                 return pick((f"Speed up slightly while approaching {self.thing()} ahead",
-                             f"Accelerate gently toward {self.thing()} ahead and prepare to stop"), u)
+                             f"Accelerate gently toward {self.thing()} ahead, which is still far away"), u)
             return pick((f"Maintain speed while approaching {self.thing()} ahead",
-                         f"Keep the current speed for now and prepare to stop for {self.thing()} ahead"), u)
+                         f"Keep the current speed for now as {self.thing()} ahead is still far away"), u)
         if d.situation == "resume":
-            return pick(("Resume driving through the intersection after the full stop at the stop sign",
-                         "Accelerate away from the stop sign now that we have come to a full stop"), u)
+            return pick(("Resume driving through the intersection now that we have waited at the stop sign",
+                         "Accelerate away from the stop sign after waiting at the line"), u)
         if d.situation == "light":
             if d.action == ACCELERATING:
                 return pick((f"Accelerate through the intersection because {self.light_phrase()}",
@@ -231,7 +231,9 @@ class _QAWriter(_Writer):
         if self.contradiction:
             demands_stop = self.decision.stop_at is not None
             if demands_stop and self.draws[CONTRADICTION_KIND] < 0.5:
+                # The decision ignores what the objects demand, and the objects say so explicitly.
                 decision = "You should accelerate and lane follow. The road ahead appears clear."
+                objects = f"{objects} This requires the ego to stop."
             else:
                 opposite = "accelerate" if self.decision.action == DECELERATING else "slow down and stop"
                 scene = f"{scene} The ego should {opposite} now."
@@ -260,7 +262,7 @@ class _QAWriter(_Writer):
             lines.append(f"{_title(kind)} at {self._position_of_critical()} {self._road_user_description()}.")
         elif kind == "traffic_light":
             colour = belief.light or "an unknown colour"
-            need = ", requiring the ego to stop" if belief.light == "red" else ""
+            need = ", requiring the ego to stop" if self.decision.action == DECELERATING else ""
             lines.append(f"Traffic light at {self._position_of_line()} showing {colour}{need}.")
         elif kind == "stop_sign":
             lines.append(f"Stop sign at {self._position_of_line()} at the intersection ahead.")
@@ -312,7 +314,7 @@ class _QAWriter(_Writer):
             verb = "accelerate gently and lane follow" if d.action == ACCELERATING else "keep and lanefollow"
             return f"You should {verb}. {_capital(self.thing())} ahead is still far away."
         if d.situation == "resume":
-            return "You should accelerate and go straight. The full stop at the stop sign has been made."
+            return "You should accelerate and go straight. We have waited at the stop sign."
         if d.situation == "light":
             verb = "accelerate" if d.action == ACCELERATING else "maintain your current speed"
             return f"You should {verb} and go straight. {_capital(self.light_phrase())}."
