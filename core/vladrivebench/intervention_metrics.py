@@ -14,6 +14,7 @@ distance difference over time with CI bands.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Mapping
 from pathlib import Path
@@ -112,6 +113,8 @@ def tables_for(results: Mapping[str, Any], label: str = "") -> list[Any]:
         items.append(closed_loop_plot(results, suffix))
     if results.get("safety"):
         items.append(safety_table(results, suffix))
+    if label:
+        items = [dataclasses.replace(item, title=f"{item.title} [run {label}]") for item in items]
     return items
 
 
