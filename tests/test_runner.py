@@ -126,6 +126,16 @@ def test_policy_drives_and_its_extras_are_logged(tmp_path):
     assert episode.result == result.to_json()
 
 
+def test_models_can_log_internals_of_their_own_cot():
+    class Introspective(EchoModel):
+        def cot_extras(self, cot):
+            return {"said_stop": cot.text.startswith("stop")}
+
+    _, steps = drive(FakeScenario("car", length=40.0, car_at=30.0, max_time_s=6.0), model=Introspective())
+    assert [s[4] for s in steps] == [{"said_stop": s[1].text.startswith("stop")} for s in steps]
+    assert {s[4]["said_stop"] for s in steps} == {True, False}
+
+
 def test_model_step_reproduces_a_closed_loop_step_from_its_log(tmp_path):
     path = tmp_path / "ep.mcap"
     with EpisodeWriter(path, {"episode_id": "x", "model": {"name": "echo"}, "scenario": {"id": "road"},

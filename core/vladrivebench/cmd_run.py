@@ -261,8 +261,11 @@ def demo_command(out: str | None, quiet: bool, as_json: bool) -> None:
 
 
 def run_demo(out: Path, *, quiet: bool = False, workers: int = 1):
-    """The demo sweep (scripted model, kinematic simulator, PID) into ``out``; returns its summary."""
-    settings = RunSettings(model="scripted", sim="kinematic", controller="pid",
+    """The demo sweep (scripted model, kinematic simulator, PID) into ``out``; returns its summary.
+
+    The scripted model perceives through the ground truth, so the camera is not rendered (3× faster).
+    """
+    settings = RunSettings(model="scripted", sim="kinematic", controller="pid", sim_options={"render": False},
                            scenarios=list(DEMO_SCENARIOS), seeds=DEMO_SEEDS, out=str(out), workers=workers)
     return execute(settings, quiet=quiet)
 

@@ -32,10 +32,16 @@ StepPolicy = Callable[[VLAModel, Observation, int], StepOutput]
 
 
 def own_cot_policy(model: VLAModel, obs: Observation, seed: int) -> StepOutput:
-    """The model drives with its own chain-of-thought: generate the CoT, decode the action from it."""
+    """The model drives with its own chain-of-thought: generate the CoT, decode the action from it.
+
+    A model may define ``cot_extras(cot) -> dict | None``: JSON-able internals of its own CoT (e.g. the
+    scripted model's record of the errors it made on purpose), logged in ``/extras``.
+    """
     cot = model.generate_cot(obs, step_rng(seed, obs.step, "cot"))
     trajectory = model.decode_action(obs, cot, step_rng(seed, obs.step, "action"))
-    return cot, trajectory, {}
+    describe = getattr(model, "cot_extras", None)
+    extras = describe(cot) if callable(describe) else None
+    return cot, trajectory, dict(extras or {})
 
 
 class EpisodeFailure(Exception):
