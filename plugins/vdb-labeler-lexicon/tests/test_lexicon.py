@@ -237,3 +237,44 @@ def test_plugin_registers_the_lexicon_labeler_and_checks_options():
             registry.create("labeler", "lexicon", {"backends": "x"})
         with pytest.raises(ConfigError, match="filter_phantom_car"):
             registry.create("labeler", "lexicon", {"filter_phantom_car": "maybe"})
+
+
+# -- approach, anticipation, following ------------------------------------------------------------------------
+BLOCKING_CAR_FAR = {"critical_kind": "car", "critical_position": [80.0, 0.0], "light_state": None, "ego_speed": 6.0,
+                    "actors": [{"kind": "car", "position": [80.0, 0.0], "speed": 0.0}]}
+
+
+@pytest.mark.parametrize(("text", "contradiction"), [
+    ("Keep the current speed for now and prepare to stop for the stop sign ahead.", False),
+    ("Maintain speed while approaching the red traffic light ahead.", False),
+    ("Maintain speed while approaching the red traffic light ahead, and brake to a full stop right away.", True),
+    ("Follow the lead car at a safe distance, and brake to a full stop right away.", True),
+    ("Slow down to keep a safe distance from the car ahead.", False),
+    ("Accelerate through the intersection although the traffic light is red.", True),
+])
+def test_anticipation_and_approach_are_not_contradictions(text, contradiction):
+    assert label(text, EMPTY_URBAN).contradiction is contradiction
+
+
+def test_a_far_blocking_obstacle_with_a_go_command_is_an_approach():
+    slots = {"scene": "The scene depicts a road.",
+             "objects": "Car at <0.00, 80.00> directly in front of the ego, stationary, blocking the lane.",
+             "decision": "You should keep and lanefollow. The car in the lane ahead is still far away."}
+    labels = label(" ".join(slots.values()), BLOCKING_CAR_FAR, slots)
+    assert not labels.contradiction and not labels.hallucination and labels.target_mentioned
+    slots["decision"] = "You should keep and lanefollow. The road ahead is clear."
+    assert label(" ".join(slots.values()), BLOCKING_CAR_FAR, slots).contradiction
+
+
+def test_approaching_is_what_the_ego_does_not_what_the_car_does():
+    labels = label("Maintain speed while approaching the car in the lane ahead.", BLOCKING_CAR_FAR)
+    assert not labels.hallucination and labels.target_mentioned
+
+
+def test_sign_coordinates_on_the_stop_line_are_not_checked_against_the_kerbside_pole():
+    context = {"critical_kind": "stop_sign", "critical_position": [30.0, -4.0], "light_state": None, "ego_speed": 5.0,
+               "actors": [{"kind": "stop_sign", "position": [30.0, -4.0], "speed": 0.0}]}
+    slots = {"scene": "A stop sign stands at the intersection ahead.", "objects": "Stop sign at <0.00, 27.50>.",
+             "decision": "You should slow down and stop."}
+    labels = label(" ".join(slots.values()), context, slots)
+    assert labels.target_mentioned and not labels.hallucination

@@ -122,12 +122,20 @@ class LexiconLabeler:
     @staticmethod
     def _contradictions(reading: rules.Reading) -> list[str]:
         found = []
-        stops = [c.phrase for c in reading.claims if c.current and rules.go_or_stop(c.action) == "stop"]
-        goes = [c.phrase for c in reading.claims if c.current and rules.go_or_stop(c.action) == "go"]
-        stops += [f"{m.colour} light" for m in reading.mentions if m.colour == "red"]
-        stops += [f"{m.word} blocking" for m in reading.mentions if m.blocking]
+        current = [c for c in reading.claims if c.current]
+        stops = [c.phrase for c in current if rules.go_or_stop(c.action) == "stop" and not c.anticipatory]
+        goes = [c for c in current if rules.go_or_stop(c.action) == "go"]
+        demands = [f"{m.colour} light" for m in reading.mentions if m.colour == "red"]
+        demands += [f"{m.word} blocking" for m in reading.mentions if m.blocking]
+        firm_goes = [c.phrase for c in goes if not c.anticipatory]
         if stops and goes:
-            found.append(f"stop ({stops[0]}) and go ({goes[0]})")
+            found.append(f"stop ({stops[0]}) and go ({goes[0].phrase})")
+        elif demands and firm_goes:
+            found.append(f"stop ({demands[0]}) and go ({firm_goes[0]})")
+        halts = [c.phrase for c in current if c.halt and not c.anticipatory]
+        follows = [c.phrase for c in current if c.action == "keep_distance"]
+        if halts and follows:
+            found.append(f"halt ({halts[0]}) and follow ({follows[0]})")
         colours = sorted({m.colour for m in reading.mentions if m.colour})
         if len(colours) > 1:
             found.append(f"light stated {' and '.join(colours)}")
@@ -179,7 +187,7 @@ def _fabricated(mention: rules.Mention, actors: list, context: Mapping) -> str |
     same = [a for a in actors if a.get("kind") == kind]
     if not same:
         return f"no {kind.replace('_', ' ')} ({mention.word})"
-    if mention.position is not None:
+    if mention.position is not None and kind in rules.ROAD_USERS:  # signs: kerb vs stop-line positions differ
         same = [a for a in same if _near(mention.position, a.get("position") or (0.0, 0.0))]
         if not same:
             forward, lateral = mention.position

@@ -88,6 +88,10 @@ _ACTION_NEGATION = re.compile(r"(?:\bnot|n't|\bno\s+need\s+to|\bwithout|\bnever|
                               r"\s+(?:\w+\s+){0,2}$")
 _SEQUENTIAL = re.compile(r"\b(?:then|afterwards|later|once|until|when|whenever|if|unless|after|before)\b")
 _LEADING_SUBORDINATE = re.compile(r"^\s*(?:after|once|when|if|before|until|unless)\b[^,]*,")
+_PREPARE = re.compile(r"\b(?:prepare|prepares|preparing|get\s+ready|getting\s+ready|ready)\s+to\s+$")
+_APPROACH = re.compile(r"\bstill\s+far\b|\bfar\s+away\b|\bfar\s+ahead\b|\bin\s+the\s+distance\b|\bfor\s+now\b"
+                       r"|\bwhile\s+approaching\b|\bas\s+we\s+approach\b|\btoward\b|\btowards\b")
+_HALT = re.compile(r"\bstop|\bhalt|\bremain\s+stopped|\bstay\s+stopped")
 _BLOCKING = re.compile(r"\b(?:blocking|blocks|blocked|obstructing|obstructs|obstructed)\b")
 _NOT_BEFORE = re.compile(r"(?:\bnot|n't|\bno\s+longer)\s+(?:\w+\s+){0,1}$")
 
@@ -96,7 +100,7 @@ MOVING_WORDS = (r"moving|moves|moved|overtaking|overtakes|driving|drives|walking
 STATIONARY_WORDS = r"stationary|stopped|parked|standing|stands|waiting|idle|immobile|not\s+moving|halted"
 _MOVING = re.compile(rf"\b(?:{MOVING_WORDS})\b")
 _STATIONARY = re.compile(rf"\b(?:{STATIONARY_WORDS})\b")
-_PRE_ATTRIBUTE = re.compile(rf"\b({MOVING_WORDS}|{STATIONARY_WORDS})\s+(?:\w+\s+)?$")
+_PRE_ATTRIBUTE = re.compile(rf"\b({MOVING_WORDS}|{STATIONARY_WORDS})\s+(?:(?!the\b|a\b|an\b|our\b)\w+\s+)?$")
 _ATTR_STOP = re.compile(r"[,;:.]|\b(?:and|then|but|because|since|so|to|until|while|when|once|as|after|before|or"
                         r"|if|may|might|could|will)\b")
 
@@ -146,6 +150,8 @@ class Claim:
     phrase: str
     slot: str | None
     current: bool  # False when negated, sequential ("then accelerate") or conditional
+    anticipatory: bool = False  # "prepare to stop"; a go while the obstacle is "still far away" / "for now"
+    halt: bool = False  # a stop to standstill ("stop", "halt"), not merely slowing
 
 
 @dataclass
@@ -163,9 +169,13 @@ def read(text: str, slots: dict[str, str] | None = None) -> Reading:
     parts = list(slots.items()) if slots else [(None, text)]
     reading.slots = tuple(name for name, _ in parts)
     for slot, part in parts:
+        first_claim = len(reading.claims)
         for sentence in _SENTENCE_SPLIT.split(part.strip()):
             if sentence.strip():
                 _read_sentence(sentence, slot, reading)
+        if _APPROACH.search(part.lower()):  # "You should keep and lanefollow. The car ahead is still far away."
+            reading.claims[first_claim:] = [_replace(c, anticipatory=True) if go_or_stop(c.action) == "go" else c
+                                            for c in reading.claims[first_claim:]]
     return reading
 
 
@@ -330,7 +340,10 @@ def _claims(text: str, slot: str | None) -> list[Claim]:
             else:
                 scope_start = prior_end.end() if prior_end else 0
                 sequential = bool(_SEQUENTIAL.search(text[scope_start:start]))
-            found.append((start, Claim(action, match.group(0), slot, not (negated or sequential))))
+            phrase = match.group(0)
+            anticipatory = bool(_PREPARE.search(before)) if action == "decelerating" else bool(_APPROACH.search(text))
+            found.append((start, Claim(action, phrase, slot, not (negated or sequential), anticipatory,
+                                       bool(_HALT.search(phrase)))))
     found.sort(key=lambda pair: pair[0])
     return [c for _, c in found]
 
