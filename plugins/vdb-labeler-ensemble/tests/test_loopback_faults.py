@@ -265,3 +265,24 @@ def test_a_wrong_key_fails_that_backend_only_and_names_the_variable(loopback, tm
     assert error.startswith("HTTP 401") and env_var in error
     assert "sk-WRONG-but-still-secret-0042" not in error and "***" in error
     assert len(server.requests()) == 3  # a 401 is not retried
+
+
+def test_an_interrupt_stops_waiting_workers_and_keeps_what_arrived(loopback, tmp_path):
+    import os
+    import signal
+    import threading
+    import time
+
+    server = loopback(Script({"wait": answer()}, {("openai", "wait"): [Status(429, {"Retry-After": "120"})]}),
+                      keys=KEYS)
+    cache = tmp_path / "cache.sqlite"
+    labeler = EnsembleLabeler(backend_specs(server), cache=cache, environ=ENVIRON, max_retry_after=600,
+                              progress_stream=io.StringIO())  # real sleeps: the Retry-After would take 2 min
+    timer = threading.Timer(0.5, os.kill, (os.getpid(), signal.SIGINT))  # as Ctrl-C does
+    started = time.monotonic()
+    timer.start()
+    with pytest.raises(KeyboardInterrupt):
+        labeler.label_batch([item("wait")])
+    assert time.monotonic() - started < 10
+    assert len(labeler.cache) == 2  # anthropic's and gemini's replies were kept
+    labeler.close()

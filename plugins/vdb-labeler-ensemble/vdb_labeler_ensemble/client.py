@@ -74,8 +74,9 @@ class BackendClient:
 
     def __init__(self, spec: BackendSpec, key: str | None, http: httpx.Client, policy: RetryPolicy, *,
                  sleep: Callable[[float], None] = time.sleep, clock: Callable[[], float] = time.monotonic,
-                 jitter: Callable[[], float], redact: Callable[[str], str]):
+                 jitter: Callable[[], float], redact: Callable[[str], str], stop: threading.Event | None = None):
         self.spec, self.policy = spec, policy
+        self._stop = stop or threading.Event()
         self._key, self._http = key, http
         self._sleep, self._clock, self._jitter, self._redact = sleep, clock, jitter, redact
         self._gate_lock = threading.Lock()
@@ -90,6 +91,8 @@ class BackendClient:
         attempt = 0
         while True:
             self._wait_for_gate()
+            if self._stop.is_set():
+                raise CallFailed("interrupted before an answer came")
             problem, retry_after = self._attempt(request)
             if isinstance(problem, Reply):
                 return problem

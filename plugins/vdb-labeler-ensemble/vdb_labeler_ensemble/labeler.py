@@ -14,6 +14,7 @@ import json
 import os
 import socket
 import sys
+import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor, wait
@@ -75,7 +76,7 @@ class EnsembleLabeler:
         max_retry_after: float = 300.0,
         progress: bool = True,
         seed: int = 0,
-        sleep: Callable[[float], None] = time.sleep,
+        sleep: Callable[[float], None] | None = None,
         clock: Callable[[], float] = time.monotonic,
         progress_stream: TextIO | None = None,
         environ: Mapping[str, str] | None = None,
@@ -94,7 +95,9 @@ class EnsembleLabeler:
         self.cache = ResponseCache(cache)
         self.version = self._version()
         self._progress, self._progress_stream = progress, progress_stream
-        self._sleep, self._clock = sleep, clock
+        self._stop = threading.Event()  # set on an interrupt: retrying workers give up instead of waiting
+        self._sleep = sleep if sleep is not None else self._stop.wait
+        self._clock = clock
         self._environ = os.environ if environ is None else environ
         self._jitter = Jitter(np.random.default_rng(seed))
         self._redact = Redactor()
@@ -116,6 +119,7 @@ class EnsembleLabeler:
         if not items:
             return []
         self.check()
+        self._stop.clear()
         rendered = [self.prompt.render(item) for item in items]
         main_calls = [self._calls_for(item, msgs, self.backends) for item, msgs in zip(items, rendered, strict=True)]
         outcomes = self._run([c for calls in main_calls for c in calls], "ensemble")
@@ -151,7 +155,7 @@ class EnsembleLabeler:
             )
         self._clients = {
             spec.name: BackendClient(spec, keys[spec.name], self._http, self.policy, sleep=self._sleep,
-                                     clock=self._clock, jitter=self._jitter, redact=self._redact)
+                                     clock=self._clock, jitter=self._jitter, redact=self._redact, stop=self._stop)
             for spec in self._all_backends()
         }
 
@@ -218,6 +222,7 @@ class EnsembleLabeler:
         pending = list({c.key: c for c in calls if c.key not in outcomes}.values())
         progress = Progress(what, len(pending), len(outcomes), stream=self._progress_stream or sys.stderr,
                             clock=self._clock, enabled=self._progress)
+        progress.announce()
         by_backend: dict[str, list[_Call]] = {}
         for call in pending:
             by_backend.setdefault(call.backend.name, []).append(call)
@@ -228,11 +233,15 @@ class EnsembleLabeler:
                 futures.update({pool.submit(self._send, call): call for call in backend_calls})
             remaining = set(futures)
             while remaining:
-                finished, remaining = wait(remaining, return_when="FIRST_COMPLETED")
+                # A bounded wait keeps the main thread responsive to Ctrl-C on every platform.
+                finished, remaining = wait(remaining, timeout=0.5, return_when="FIRST_COMPLETED")
                 for future in finished:
                     outcome = future.result()
                     outcomes[futures[future].key] = outcome
                     progress.advance(failed=isinstance(outcome, CallFailed))
+        except BaseException:
+            self._stop.set()  # Ctrl-C: calls in flight finish or fail fast; their replies are already cached
+            raise
         finally:
             for pool in pools:
                 pool.shutdown(wait=True, cancel_futures=True)

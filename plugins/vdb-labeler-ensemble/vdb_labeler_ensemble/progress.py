@@ -24,9 +24,16 @@ class Progress:
         self._clock = clock
         self._tty = bool(getattr(self._stream, "isatty", lambda: False)())
         self._interval = interval if interval is not None else (0.2 if self._tty else 10.0)
+        self._enabled_at_all = enabled
         self._enabled = enabled and total > 0
         self._start = clock()
         self._last_shown: float | None = None
+
+    def announce(self) -> None:
+        """Say so when every call is already cached (nothing else would be shown)."""
+        if self._enabled_at_all and self.total == 0 and self.cached:
+            self._stream.write(f"{self.what}: nothing to call, all {self.cached} cached\n")
+            self._stream.flush()
 
     def advance(self, failed: bool = False) -> None:
         """One more call finished (successfully or not)."""

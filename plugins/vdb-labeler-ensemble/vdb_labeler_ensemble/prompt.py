@@ -11,6 +11,7 @@ import hashlib
 import importlib.resources
 import json
 import math
+import numbers
 import string
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -229,6 +230,6 @@ def _position(position: Any) -> str:
 
 
 def _number(value: Any) -> float | None:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+    if isinstance(value, bool) or not isinstance(value, numbers.Real) or not math.isfinite(value):
         return None
     return round(float(value), 1)
