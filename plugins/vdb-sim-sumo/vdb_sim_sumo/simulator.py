@@ -162,6 +162,8 @@ class SumoSimulator:
             self.users.append(ScriptedUser.at_start(spec, shift))
         sumo_seed = int(episode_rng(seed, "sumo").integers(0, 2**31 - 1))
         args = ["-n", str(world.net), "--seed", str(sumo_seed), *SUMO_OPTIONS]
+        if self.pedestrians == "sumo":
+            args += ["--pedestrian.striping.dawdling", "0"]  # walkers keep the scenario's speed
         if world.routes is not None:
             args += ["-r", str(world.routes)]
         self.session.begin(args, f"scenario {scenario.source or scenario.id}")
@@ -185,6 +187,10 @@ class SumoSimulator:
         self.truth = TruthTracker(scenario, self.road)
         self.step_index = 0
         self._terminal = None
+        # One step to insert the new road users, one with them placed: a person placed in the step it
+        # departs would land short of its place.
+        self._place()
+        sumo.simulationStep()
         self._place()
         sumo.simulationStep()
         return self._observe()
@@ -292,7 +298,7 @@ class SumoSimulator:
             sumo.vehicletype.setHeight(type_id, spec.height)
             if spec.kind in PERSON_KINDS:
                 if self._native is not None and self._native.handles(spec.id):
-                    self._native.add(user, type_id)
+                    self._native.add(user, type_id, sumo_id)
                     continue
                 edge, pos, _ = sumo.simulation.convertRoad(actor.x, actor.y, False, "pedestrian")
                 sumo.person.add(sumo_id, edge, pos, typeID=type_id)
@@ -311,7 +317,7 @@ class SumoSimulator:
             started = user.check_trigger(front)
             if self._native is not None and self._native.handles(user.spec.id):
                 if started:
-                    self._native.start(user)
+                    self._native.start(user, ACTOR_PREFIX + user.spec.id)
                 continue
             user.advance(route, self.ego, self.dt)
 
@@ -324,10 +330,11 @@ class SumoSimulator:
         route = self.road.route
         for user in self.users:
             spec = user.spec
+            sumo_id = ACTOR_PREFIX + spec.id
             if self._native is not None and self._native.handles(spec.id):
+                self._native.place(spec.id, sumo_id)
                 continue
             actor = user.actor(route)
-            sumo_id = ACTOR_PREFIX + spec.id
             if spec.kind in PERSON_KINDS:
                 sumo.person.moveToXY(sumo_id, "", actor.x, actor.y, _sumo_angle(actor.yaw), 2)
             else:
@@ -335,39 +342,53 @@ class SumoSimulator:
                          actor.y + math.sin(actor.yaw) * actor.length / 2)
                 sumo.vehicle.moveToXY(sumo_id, "", -1, front[0], front[1], _sumo_angle(actor.yaw), 2)
 
-    def sumo_actors(self) -> tuple[Actor, ...]:
-        """Every road user in SUMO now (scenario users under their ids, background ones under SUMO's)."""
-        sumo = self.libsumo
+    def actors(self) -> tuple[Actor, ...]:
+        """Every road user now: the scenario's (in scenario order; scripted ones where their script puts
+        them, SUMO-walked ones where SUMO walks them), then SUMO's background vehicles and pedestrians."""
+        route = self.road.route
         out = []
-        specs = {ACTOR_PREFIX + u.spec.id: u.spec for u in self.users}
+        for user in self.users:
+            if self._native is not None and self._native.handles(user.spec.id):
+                actor = self.sumo_pose(user.spec.id)
+                self._native.observed(actor.actor_id, actor.x, actor.y, actor.yaw)
+                out.append(actor)
+            else:
+                out.append(user.actor(route))
+        sumo = self.libsumo
         for vid in sumo.vehicle.getIDList():
-            if vid == EGO_ID:
-                continue
-            x, y = sumo.vehicle.getPosition(vid)
-            yaw = _yaw(sumo.vehicle.getAngle(vid))
-            length, width, height = self._size(vid, specs, vehicle=True)
-            cx, cy = x - math.cos(yaw) * length / 2, y - math.sin(yaw) * length / 2
-            out.append(self._actor(vid, specs, "car", cx, cy, yaw, length, width, height,
-                                   sumo.vehicle.getSpeed(vid)))
+            if vid != EGO_ID and not vid.startswith(ACTOR_PREFIX):
+                out.append(self._vehicle_actor(vid, vid, "car", *self._size(vid, vehicle=True)))
         for pid in sumo.person.getIDList():
-            x, y = sumo.person.getPosition(pid)
-            yaw = _yaw(sumo.person.getAngle(pid))
-            length, width, height = self._size(pid, specs, vehicle=False)
-            out.append(self._actor(pid, specs, "pedestrian", x, y, yaw, length, width, height,
-                                   sumo.person.getSpeed(pid)))
+            if not pid.startswith(ACTOR_PREFIX):
+                out.append(self._person_actor(pid, pid, "pedestrian", *self._size(pid, vehicle=False)))
         return tuple(out)
 
-    def _actor(self, sumo_id: str, specs: dict, kind: str, x: float, y: float, yaw: float, length: float,
-               width: float, height: float, speed: float) -> Actor:
-        spec = specs.get(sumo_id)
-        if spec is not None:
-            return Actor(spec.id, spec.kind, x, y, yaw, length, width, height, max(float(speed), 0.0))
-        return Actor(sumo_id, kind, x, y, yaw, length, width, height, max(float(speed), 0.0))
+    def sumo_pose(self, actor_id: str) -> Actor:
+        """Where SUMO has the scenario road user ``actor_id`` (its copy of a scripted one: SUMO maps a placed
+        person onto the nearest walking path, a few centimetres from its scripted place at most)."""
+        spec = self.scenario.actor(actor_id)
+        sumo_id = ACTOR_PREFIX + actor_id
+        if spec.kind in PERSON_KINDS:
+            return self._person_actor(sumo_id, spec.id, spec.kind, spec.length, spec.width, spec.height)
+        return self._vehicle_actor(sumo_id, spec.id, spec.kind, spec.length, spec.width, spec.height)
 
-    def _size(self, sumo_id: str, specs: dict, vehicle: bool) -> tuple[float, float, float]:
-        spec = specs.get(sumo_id)
-        if spec is not None:
-            return spec.length, spec.width, spec.height
+    def _vehicle_actor(self, sumo_id: str, actor_id: str, kind: str, length: float, width: float,
+                       height: float) -> Actor:
+        vehicle = self.libsumo.vehicle
+        x, y = vehicle.getPosition(sumo_id)  # the front bumper
+        yaw = _yaw(vehicle.getAngle(sumo_id))
+        cx, cy = x - math.cos(yaw) * length / 2, y - math.sin(yaw) * length / 2
+        return Actor(actor_id, kind, cx, cy, yaw, length, width, height, max(vehicle.getSpeed(sumo_id), 0.0))
+
+    def _person_actor(self, sumo_id: str, actor_id: str, kind: str, length: float, width: float,
+                      height: float) -> Actor:
+        person = self.libsumo.person
+        x, y = person.getPosition(sumo_id)
+        yaw = _yaw(person.getAngle(sumo_id))
+        return Actor(actor_id, kind, x, y, yaw, length, width, height, max(person.getSpeed(sumo_id), 0.0))
+
+    def _size(self, sumo_id: str, vehicle: bool) -> tuple[float, float, float]:
+        """(length, width, height) of a background road user, from its SUMO type."""
         domain = self.libsumo.vehicle if vehicle else self.libsumo.person
         type_id = domain.getTypeID(sumo_id)
         if type_id not in self._sizes:
@@ -386,7 +407,7 @@ class SumoSimulator:
         return tuple(out)
 
     def _observe(self) -> Observation:
-        actors = self.sumo_actors()
+        actors = self.actors()
         collisions = tuple(dict.fromkeys(colliding(self.ego, actors) + self.sumo_collisions()))
         truth = self.truth.observe(self.step_index, self.ego, actors, collisions)
         self._terminal = truth.terminal
