@@ -21,7 +21,7 @@ them into a :class:`~vladrivebench.records.GroundTruth`. Conventions:
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -75,7 +75,9 @@ class TruthTracker:
     """Computes each step's ground truth for one episode of ``scenario`` on ``road``; create one per
     episode (the stop-sign rule remembers where the ego was slow)."""
 
-    def __init__(self, scenario: Scenario, road: RoadGeometry):
+    def __init__(self, scenario: Scenario, road: RoadGeometry, crossing_s: Mapping[str, float] | None = None):
+        """``crossing_s`` overrides the crossing line of crossing actors (a simulator that jittered their
+        start passes where they actually cross)."""
         self.scenario, self.road = scenario, road
         self.features = feature_actors(scenario, road)
         self.route_length = road.route.length
@@ -90,7 +92,7 @@ class TruthTracker:
         elif scenario.stop_sign is not None and scenario.critical == scenario.stop_sign.id:
             self.critical_fixed_s = scenario.stop_sign.stop_line
         elif critical is not None and critical.motion == "cross":
-            self.critical_fixed_s = critical.s
+            self.critical_fixed_s = (crossing_s or {}).get(critical.id, critical.s)
 
     def ego_s(self, ego: EgoState) -> float:
         """Route position of the ego's centre, searched near the previous one (routes may pass close to

@@ -276,3 +276,11 @@ def test_episode_lengths_and_timeout(fast, suite):
         obs = fast.step(BRAKE)
         steps += 1
     assert steps == suite["BASE"].max_steps == 300 and obs.ground_truth.terminal == "timeout"
+
+
+def test_distance_to_a_crossing_pedestrian_uses_its_jittered_crossing_line(fast, suite):
+    for seed in range(3):
+        obs = fast.reset(suite["P.2"], seed)
+        walker = obs.ground_truth.actor("ped0")
+        front = obs.ego.x + obs.ego.length / 2
+        assert obs.ground_truth.distance_to_critical == pytest.approx(walker.x - front, abs=1e-9)

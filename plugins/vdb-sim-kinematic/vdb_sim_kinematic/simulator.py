@@ -96,7 +96,8 @@ class KinematicSimulator:
         x, y = (float(v) for v in route.position(0.0))
         self.ego = EgoState(x, y, float(route.heading(0.0)), scenario.ego.speed, 0.0,
                             bicycle.EGO_LENGTH, bicycle.EGO_WIDTH)
-        self.truth = TruthTracker(scenario, self.road)
+        crossing = {user.spec.id: user.s for user in self.users if user.spec.motion == "cross"}
+        self.truth = TruthTracker(scenario, self.road, crossing)
         self.step_index = 0
         self._terminal = None
         return self._observe(collisions=())
