@@ -7,6 +7,7 @@ call is never repeated; a rerun on the same cache costs zero calls; Retry-After 
 from __future__ import annotations
 
 import io
+import itertools
 
 import pytest
 from vdb_labeler_ensemble.labeler import EnsembleLabeler
@@ -240,16 +241,20 @@ def test_openai_compatible_local_server_without_key(loopback, tmp_path, fake_clo
     assert {s.body["max_tokens"] for s in server.seen} == {1024} and {s.body["temperature"] for s in server.seen} == {0}
 
 
-def test_progress_with_eta_goes_to_the_given_stream(loopback, tmp_path, fake_clock):
+def test_progress_with_eta_goes_to_the_given_stream(loopback, tmp_path):
     truth = {f"p{i}": answer() for i in range(4)}
     server = loopback(Script(truth), keys=KEYS)
+    ticks = itertools.count(0, 3)  # every look at the clock is 3 s later: the calls seem slow (thread-safe)
+
     stream = io.StringIO()
-    labeler = make_labeler(server, tmp_path, fake_clock, concurrency=1)
-    labeler._progress_stream = stream
+    labeler = EnsembleLabeler(backend_specs(server), cache=tmp_path / "c.sqlite", environ=ENVIRON,
+                              clock=lambda: float(next(ticks)), progress_stream=stream, concurrency=1)
     labeler.label_batch([item(tag) for tag in truth])
     labeler.close()
-    text = stream.getvalue()
-    assert "ensemble: 12/12 calls" in text and "done in" in text
+    lines = stream.getvalue().splitlines()
+    assert lines and all(line.startswith("ensemble: ") for line in lines)
+    assert any(" calls/s, ETA " in line for line in lines[:-1])
+    assert lines[-1].startswith("ensemble: 12/12 calls, done in ")
 
 
 @pytest.mark.parametrize("protocol", ["openai", "anthropic", "gemini"])

@@ -222,7 +222,6 @@ class EnsembleLabeler:
         pending = list({c.key: c for c in calls if c.key not in outcomes}.values())
         progress = Progress(what, len(pending), len(outcomes), stream=self._progress_stream or sys.stderr,
                             clock=self._clock, enabled=self._progress)
-        progress.announce()
         by_backend: dict[str, list[_Call]] = {}
         for call in pending:
             by_backend.setdefault(call.backend.name, []).append(call)

@@ -1,7 +1,9 @@
 """Progress with an ETA on stderr while calls are being made.
 
-On a terminal the line is redrawn in place; otherwise (a log file, CI) a line is printed at most every
-``interval`` seconds, so logs stay short. The ETA is the remaining calls divided by the rate so far.
+On a terminal the line is redrawn in place and cleared when the batch is done; otherwise (a log file, CI)
+a line is printed every ``interval`` seconds, and a closing line if any was, so short batches stay silent
+and the ``vdb label`` command's own progress is not drowned. The ETA is the remaining calls divided by
+the rate so far.
 """
 
 from __future__ import annotations
@@ -24,23 +26,18 @@ class Progress:
         self._clock = clock
         self._tty = bool(getattr(self._stream, "isatty", lambda: False)())
         self._interval = interval if interval is not None else (0.2 if self._tty else 10.0)
-        self._enabled_at_all = enabled
         self._enabled = enabled and total > 0
-        self._start = clock()
-        self._last_shown: float | None = None
-
-    def announce(self) -> None:
-        """Say so when every call is already cached (nothing else would be shown)."""
-        if self._enabled_at_all and self.total == 0 and self.cached:
-            self._stream.write(f"{self.what}: nothing to call, all {self.cached} cached\n")
-            self._stream.flush()
+        self._start = self._last_shown = clock()
+        self._shown = False
 
     def advance(self, failed: bool = False) -> None:
         """One more call finished (successfully or not)."""
         self.done += 1
         self.failed += int(failed)
         now = self._clock()
-        if self.done == self.total or self._last_shown is None or now - self._last_shown >= self._interval:
+        if self.done >= self.total:
+            self._finish(now)
+        elif now - self._last_shown >= self._interval:
             self._show(now)
 
     def line(self, now: float | None = None) -> str:
@@ -63,10 +60,17 @@ class Progress:
     def _show(self, now: float) -> None:
         if not self._enabled:
             return
-        self._last_shown = now
-        end = "\n" if (self.done == self.total or not self._tty) else ""
-        prefix = "\r\x1b[2K" if self._tty else ""
-        self._stream.write(prefix + self.line(now) + end)
+        self._last_shown, self._shown = now, True
+        if self._tty:
+            self._stream.write("\r\x1b[2K" + self.line(now))
+        else:
+            self._stream.write(self.line(now) + "\n")
+        self._stream.flush()
+
+    def _finish(self, now: float) -> None:
+        if not (self._enabled and self._shown):
+            return
+        self._stream.write("\r\x1b[2K" if self._tty else self.line(now) + "\n")
         self._stream.flush()
 
 
