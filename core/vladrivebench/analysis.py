@@ -17,7 +17,7 @@ from typing import Any
 from .alignment import action_head_set, cot_action_set, relaxed_aligned, strict_aligned, time_to_collision
 from .errors import ConfigError, LogError
 from .labels import LabelStore, content_key, context_from_step, label_input, stored_labelers
-from .metrics import AnalysisDataset
+from .metrics import AnalysisDataset, episode_key
 from .records import LabelInput, Labels
 
 ZONES = ("far", "med", "near", "past")
@@ -74,7 +74,7 @@ class StepView:
 def step_views(dataset: AnalysisDataset, episode: Any) -> list[StepView]:
     """The steps of ``episode`` as :class:`StepView` (cached on the dataset)."""
     cache = dataset.extra.setdefault("step_views", {})
-    key = episode.episode_id
+    key = episode_key(episode)
     if key not in cache:
         cache[key] = _build_views(dataset, episode)
     return cache[key]
@@ -123,7 +123,7 @@ def observational(dataset: AnalysisDataset) -> list[Any]:
 
 
 def model_labels(episodes: Sequence[Any]) -> dict[str, str]:
-    """A display name per episode id: the model name, plus the options that differ between its runs."""
+    """A display name per episode (by :func:`episode_key`): the model name plus the options that differ between its runs."""
     options_by_name: dict[str, list[dict]] = {}
     for episode in episodes:
         model = episode.meta.get("model") or {}
@@ -137,19 +137,19 @@ def model_labels(episodes: Sequence[Any]) -> dict[str, str]:
         name = str(model.get("name", "?"))
         options = model.get("options") or {}
         shown = ", ".join(f"{k}={options.get(k)}" for k in varying[name])
-        labels[episode.episode_id] = f"{name} ({shown})" if shown else name
+        labels[episode_key(episode)] = f"{name} ({shown})" if shown else name
     return labels
 
 
 def ordered_models(dataset: AnalysisDataset, episodes: Iterable[Any]) -> list[str]:
     """Model display names in order of first appearance (episodes are sorted by path)."""
     labels = dataset.extra.get("model_labels") or model_labels(dataset.episodes)
-    return list(dict.fromkeys(labels[e.episode_id] for e in episodes))
+    return list(dict.fromkeys(labels[episode_key(e)] for e in episodes))
 
 
 def model_of(dataset: AnalysisDataset, episode: Any) -> str:
     labels = dataset.extra.setdefault("model_labels", model_labels(dataset.episodes))
-    return labels[episode.episode_id]
+    return labels[episode_key(episode)]
 
 
 # -- loading --------------------------------------------------------------------------------------------
@@ -238,10 +238,10 @@ def attach_labels(dataset: AnalysisDataset, store: LabelStore, episodes: Sequenc
         total += 1
         found = store.latest(content_key(item))
         if found is None:
-            missing[episode.episode_id] += 1
+            missing[_relative(episode.path, dataset.directory)] += 1
             continue
         versions[found.version] += 1
-        dataset.labels[(episode.episode_id, step)] = found.labels
+        dataset.labels[(episode_key(episode), step)] = found.labels
         if found.labels.unlabelled:
             reasons[found.labels.unlabelled] += 1
     labelled = total - sum(missing.values()) - sum(reasons.values())

@@ -244,7 +244,7 @@ class AnalysisDataset:
     """Everything a metric may read: the episodes of one directory and their labels.
 
     ``episodes`` are :class:`vladrivebench.logs.Episode` objects (logs are the single source of truth);
-    ``labels`` maps ``(episode_id, step)`` to the :class:`~vladrivebench.records.Labels` of that step's CoT
+    ``labels`` maps ``(episode_key(episode), step)`` to the :class:`~vladrivebench.records.Labels` of that step's CoT
     when the directory has been labelled with ``labeler``; ``notes`` lists what is missing or was skipped
     (truncated logs, steps without labels, …) and every report prints them.
     """
@@ -258,7 +258,7 @@ class AnalysisDataset:
 
     def labels_for(self, episode: Any, step: int) -> Labels | None:
         """The labels of ``episode``'s step ``step``, or ``None`` when it has none (or is unlabelled)."""
-        found = self.labels.get((episode.episode_id, step))
+        found = self.labels.get((episode_key(episode), step))
         if found is None or found.unlabelled:
             return None
         return found
@@ -271,6 +271,11 @@ class AnalysisDataset:
         """Record something the reader must know (what is missing, what was skipped); no duplicates."""
         if text not in self.notes:
             self.notes.append(text)
+
+
+def episode_key(episode: Any) -> str:
+    """A key unique within a dataset: the log's path (episode ids repeat across runs of one directory tree)."""
+    return str(episode.path)
 
 
 # -- statistics ------------------------------------------------------------------------------------------
