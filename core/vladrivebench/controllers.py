@@ -57,19 +57,26 @@ def arc_length_at(trajectory: Trajectory, t: float | np.ndarray) -> np.ndarray:
 def desired_speed(trajectory: Trajectory, start_s: float, end_s: float) -> float:
     """The average speed the trajectory asks for between ``start_s`` and ``end_s`` seconds ahead."""
     times, _, arc = _timed_path(trajectory)
-    end = min(end_s, float(times[-1]))
-    start = min(start_s, end - 1e-6) if end > 0 else 0.0
-    start = max(start, 0.0)
-    if end <= start:
-        return 0.0
-    covered = float(np.interp(end, times, arc) - np.interp(start, times, arc))
-    return max(covered, 0.0) / (end - start)
+    return _window_speed(times, arc, start_s, end_s)
 
 
 def point_along(trajectory: Trajectory, distance: float) -> np.ndarray | None:
     """The point ``distance`` metres along the trajectory (the last point if it is shorter); ``None`` if
     the trajectory does not move away from the ego."""
     _, points, arc = _timed_path(trajectory)
+    return _point_at(points, arc, distance)
+
+
+def _window_speed(times: np.ndarray, arc: np.ndarray, start_s: float, end_s: float) -> float:
+    end = min(end_s, float(times[-1]))
+    start = max(min(start_s, end - 1e-6), 0.0) if end > 0 else 0.0
+    if end <= start:
+        return 0.0
+    covered = float(np.interp(end, times, arc) - np.interp(start, times, arc))
+    return max(covered, 0.0) / (end - start)
+
+
+def _point_at(points: np.ndarray, arc: np.ndarray, distance: float) -> np.ndarray | None:
     if arc[-1] <= 1e-6:
         return None
     d = min(distance, float(arc[-1]))
@@ -127,9 +134,10 @@ class PIDController:
         self._steer_pid.reset()
 
     def control(self, trajectory: Trajectory, ego: EgoState, dt: float) -> Control:
-        v_des = min(desired_speed(trajectory, *self.speed_window), self.max_speed)
+        times, points, arc = _timed_path(trajectory)
+        v_des = min(_window_speed(times, arc, *self.speed_window), self.max_speed)
         throttle, brake = self._longitudinal(v_des, ego.speed, dt)
-        steer = self._lateral(trajectory, dt)
+        steer = self._lateral(points, arc, dt)
         return Control(throttle=throttle, steer=steer, brake=brake, v_des=v_des)
 
     def _longitudinal(self, v_des: float, speed: float, dt: float) -> tuple[float, float]:
@@ -149,8 +157,8 @@ class PIDController:
         # for (the vehicle model has no drag, so coasting would keep the excess forever).
         return 0.0, float(min(-command * THROTTLE_ACCEL / BRAKE_DECEL, 1.0))
 
-    def _lateral(self, trajectory: Trajectory, dt: float) -> float:
-        aim = point_along(trajectory, self.aim_distance)
+    def _lateral(self, points: np.ndarray, arc: np.ndarray, dt: float) -> float:
+        aim = _point_at(points, arc, self.aim_distance)
         heading = 0.0 if aim is None or np.hypot(*aim) < 0.5 else math.atan2(aim[1], aim[0])
         return float(np.clip(self._steer_pid.step(heading, dt), -1.0, 1.0))
 

@@ -232,10 +232,10 @@ def plan_speeds(speed: float, decision: Decision, steps: int = STEPS, dt: float 
     :data:`EASE_DECEL` when above it) and, with a stop, never faster than braking at ``decision.decel``
     to stand still at ``decision.stop_at``; the trapezoidal integral of the profile never passes it
     (unless the ego is already too close to stop within one step)."""
-    v = float(np.clip(speed, 0.0, MAX_SPEED))
-    out = np.zeros(steps)
+    v = min(max(float(speed), 0.0), MAX_SPEED)
+    out = []
     travelled = 0.0
-    for k in range(steps):
+    for _ in range(steps):
         if v < decision.target:
             nxt = min(v + decision.ramp * dt, decision.target)
         else:
@@ -244,10 +244,11 @@ def plan_speeds(speed: float, decision: Decision, steps: int = STEPS, dt: float 
             room = max(decision.stop_at - travelled, 0.0)
             # Leave room for the step after this one to stop in: room ≥ ½·v·dt + nxt·dt.
             nxt = min(nxt, math.sqrt(2.0 * decision.decel * room), max((room - 0.5 * v * dt) / dt, 0.0))
-        nxt = float(np.clip(nxt, 0.0, MAX_SPEED))
+        nxt = min(max(nxt, 0.0), MAX_SPEED)  # plain floats: this loop runs twice per model step
         travelled += 0.5 * (v + nxt) * dt
-        out[k], v = nxt, nxt
-    return out
+        out.append(nxt)
+        v = nxt
+    return np.array(out)
 
 
 def arc_lengths(speed: float, speeds: np.ndarray, dt: float = DT) -> np.ndarray:
