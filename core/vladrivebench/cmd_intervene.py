@@ -14,6 +14,7 @@ from typing import Any
 import click
 
 from .errors import ConfigError, VdbError
+from .intervention import DEFAULT_SEEDS
 
 
 class InvalidRunError(VdbError):
@@ -76,8 +77,6 @@ def build_config(opts: dict[str, Any], registry: Any) -> Any:
     routes = tuple(resolve_scenarios(list(parse_names(opts["route"], "--route")), registry))
     harvest = resolve_scenarios(opts["harvest_route"], registry)[0] if opts["harvest_route"] else None
     conditions = parse_names(opts["conditions"] or DEFAULT_CONDITIONS.get(mode, "selfsplice"), "--conditions")
-    if opts["seeds"] is None:
-        raise ConfigError("--seeds is required (the number of seeds N: seeds 0 … N−1)")
     return InterventionConfig(
         mode=mode,
         model=ComponentSpec("model", opts["model"], parse_options(opts["model_opt"], "--model-opt")),
@@ -126,7 +125,8 @@ def _num(value: Any) -> str:
               "safety: accel). See `vdb conditions`.")
 @click.option("--condition-file", multiple=True, type=click.Path(dir_okay=False),
               help="TOML/JSON file of extra conditions (repeatable).")
-@click.option("--seeds", type=int, help="Number of seeds N: seeds 0 … N−1 (plus --seed-offset).")
+@click.option("--seeds", type=int, default=DEFAULT_SEEDS, show_default=True,
+              help="Number of seeds N: seeds 0 … N−1 (plus --seed-offset).")
 @click.option("--seed-offset", type=int, default=0, help="First seed (default 0).")
 @click.option("--out", type=click.Path(file_okay=False), help="Output directory (resumed if it holds this run).")
 @click.option("--model-opt", multiple=True, metavar="KEY=VALUE", help="Model option (repeatable).")

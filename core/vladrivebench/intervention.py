@@ -75,6 +75,8 @@ MODES = ("open-loop", "closed-loop", "safety")
 DEFAULT_HORIZONS = (2.0, 3.0)
 DEFAULT_CHECKPOINTS = (2.0, 4.0, 5.9)
 DEFAULT_SAFETY_CONDITIONS = ("accel",)
+DEFAULT_SEEDS = 5
+"""Seeds per condition when none are asked for (the paper used 5–9 for open loop); see ``--plan``."""
 RESULTS_NAME = "intervention.json"
 RESULTS_FORMAT = 1
 OBSTACLE_KINDS = ("pedestrian", "car", "animal")

@@ -12,6 +12,7 @@ differences. Seed planning uses statsmodels' ``TTestPower``.
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, replace
 from typing import Any
@@ -84,7 +85,10 @@ def one_sample_t_test(values: Sequence[float]) -> TTest:
         if x[0] == 0.0:
             return TTest(0.0, 1.0, x.size - 1)
         return TTest(math.copysign(math.inf, x[0]), 0.0, x.size - 1)
-    result = stats.ttest_1samp(x, 0.0)
+    with warnings.catch_warnings():
+        # nearly identical values (a strong, steady effect) make scipy warn about precision; p is ~0 then
+        warnings.simplefilter("ignore", RuntimeWarning)
+        result = stats.ttest_1samp(x, 0.0)
     return TTest(float(result.statistic), float(result.pvalue), x.size - 1)
 
 
