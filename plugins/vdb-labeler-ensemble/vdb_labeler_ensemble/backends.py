@@ -334,7 +334,8 @@ def _gemini_request(spec: BackendSpec, system: str, user: str, key: str | None) 
     headers = {"Content-Type": "application/json"}
     if key:
         headers["x-goog-api-key"] = key
-    return Request(f"{spec.base_url}/models/{spec.model}:generateContent", headers, body)
+    model = spec.model.removeprefix("models/")  # both "gemini-2.5-pro" and "models/gemini-2.5-pro" work
+    return Request(f"{spec.base_url}/models/{model}:generateContent", headers, body)
 
 
 _GEMINI_REFUSALS = {"SAFETY", "RECITATION", "BLOCKLIST", "PROHIBITED_CONTENT", "SPII", "LANGUAGE", "OTHER"}

@@ -74,6 +74,9 @@ class ResponseCache:
         try:
             db = sqlite3.connect(target, check_same_thread=False, timeout=30.0)
             db.execute("PRAGMA journal_mode=WAL")
+            # A commit then survives a killed process without an fsync each (only a power cut could lose
+            # the last few replies, never corrupt the file).
+            db.execute("PRAGMA synchronous=NORMAL")
             db.execute(
                 "CREATE TABLE IF NOT EXISTS replies (key TEXT PRIMARY KEY, backend TEXT NOT NULL, "
                 "model TEXT NOT NULL, prompt_version TEXT NOT NULL, created REAL NOT NULL, reply TEXT NOT NULL)"

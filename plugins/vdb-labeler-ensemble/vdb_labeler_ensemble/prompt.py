@@ -7,6 +7,7 @@ example's answer follows the answer schema, so a broken copy fails before any ca
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import importlib.resources
 import json
@@ -63,13 +64,15 @@ class Prompt:
         user = string.Template(self.template).substitute(
             instructions=self.instructions.strip() + "\n",
             schema=schema_text(),
-            examples=self._examples_text(),
+            examples=self.examples_text,
             ground_truth=describe_context(item.context),
             cot=describe_cot(item.text, item.slots),
         )
         return self.system.strip(), user.strip() + "\n"
 
-    def _examples_text(self) -> str:
+    @functools.cached_property
+    def examples_text(self) -> str:
+        """The few-shot examples as shown in every prompt (rendered once)."""
         blocks = []
         for number, example in enumerate(self.examples, 1):
             blocks.append(

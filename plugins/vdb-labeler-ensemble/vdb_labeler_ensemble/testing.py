@@ -89,11 +89,13 @@ class _Server(ThreadingHTTPServer):
 
 
 class LoopbackLLM:
-    """The server. ``keys`` maps protocol → expected API key (a wrong key gets a 401 that echoes it)."""
+    """The server. ``keys`` maps protocol → expected API key (a wrong key gets a 401 that echoes it);
+    ``latency`` is how long every answer takes."""
 
-    def __init__(self, responder: Responder, keys: dict[str, str] | None = None):
+    def __init__(self, responder: Responder, keys: dict[str, str] | None = None, latency: float = 0.0):
         self.responder = responder
         self.keys = keys or {}
+        self.latency = latency  # seconds every answer takes, as a real model's would
         self.seen: list[Seen] = []
         self._lock = threading.Lock()
         self._attempts: Counter[tuple[str, str, str]] = Counter()
@@ -168,6 +170,8 @@ class LoopbackLLM:
             self._send(handler, 401, {"error": {"message": f"Incorrect API key provided: {received}"}})
             return
         action = self.responder(protocol, model, tag, attempt)
+        if self.latency:
+            time.sleep(self.latency)
         if isinstance(action, Hang):
             seen.status = -1  # the client gives up before the answer comes
             time.sleep(action.seconds)
