@@ -49,9 +49,11 @@ def check_text_shows_the_truth(obs, cot, truth):
     text, gt = cot.text, obs.ground_truth
     kinds = named_kinds(text)
     if truth["mentioned"] is None:
-        assert gt.critical_kind is None or gt.distance_to_critical > 80.0 or gt.distance_to_critical < 0
+        assert gt.critical_kind is None
     else:
         assert truth["mentioned"] == (gt.critical_kind in kinds)
+        out_of_range = gt.distance_to_critical > 80.0 or (gt.distance_to_critical < 0 and not gt.blocking)
+        assert truth["in_range"] == (not out_of_range)
     assert truth["hallucinated"] == (truth["phantom"] is not None)
     if truth["phantom"]:
         assert truth["phantom"] in kinds
@@ -75,8 +77,10 @@ def test_each_event_is_its_pinned_draw_below_its_rate(cot_format, seed, i, rates
     cot = model.generate_cot(obs, step_rng(seed, obs.step, "cot"))
     truth = cot_truth(cot)
     u = step_rng(seed, obs.step, "cot").random(N_DRAWS)
-    if truth["mentioned"] is not None:
+    if truth["in_range"]:
         assert truth["mentioned"] == (not u[MISS] < miss)
+    elif truth["mentioned"] is not None:
+        assert truth["mentioned"] is False  # never mentioned beyond the range or behind
     assert truth["hallucinated"] == (u[HALLUCINATE] < halluc)
     assert truth["contradiction"] == (u[CONTRADICT] < contra)
     if truth["light_stated"] is not None:
@@ -101,7 +105,7 @@ def test_observed_frequencies_match_the_options(cot_format):
         cot = model.generate_cot(obs, step_rng(7, i, "cot"))
         truth = cot_truth(cot)
         check_text_shows_the_truth(obs, cot, truth)
-        if truth["mentioned"] is not None:
+        if truth["in_range"]:
             counts["present"] += 1
             counts["missed"] += not truth["mentioned"]
         if truth["light_stated"] is not None:
@@ -123,11 +127,11 @@ def test_rates_of_zero_and_one_are_never_and_always(cot_format):
     for i in range(len(SITUATIONS)):
         obs = observation(i)
         clean = cot_truth(never.generate_cot(obs, step_rng(1, i, "cot")))
-        assert clean["mentioned"] in (True, None)
+        assert clean["mentioned"] == clean["in_range"] or clean["mentioned"] is None
         assert not (clean["hallucinated"] or clean["contradiction"] or clean["light_wrong"])
         assert clean["stated_action"] == clean["decision"]
         dirty = cot_truth(always.generate_cot(obs, step_rng(1, i, "cot")))
-        assert dirty["mentioned"] in (False, None) and dirty["hallucinated"] and dirty["contradiction"]
+        assert not dirty["mentioned"] and dirty["hallucinated"] and dirty["contradiction"]
 
 
 def test_a_missed_critical_feature_is_reasoned_without():

@@ -58,7 +58,9 @@ class ScriptedState:
 def cot_truth(cot: CoT) -> dict[str, Any] | None:
     """What the scripted model knows about a CoT it generated, else ``None``.
 
-    Keys: ``mentioned`` (``None`` when no critical feature is ahead within range), ``critical_kind``,
+    Keys: ``mentioned`` (``None`` when the step has no critical feature; ``False`` when it was missed
+    or is not ahead within ``perception_range``), ``in_range`` (it is ahead within range, so it is
+    mentioned unless missed with probability ``miss_rate``), ``critical_kind``,
     ``light_stated``, ``light_wrong``, ``hallucinated``, ``phantom`` (its kind), ``contradiction``,
     ``decision`` (the policy's decision on the CoT's belief) and ``stated_action`` (the intent the
     model's reader finds in the text: ``maintaining``/``accelerating``/``decelerating``/

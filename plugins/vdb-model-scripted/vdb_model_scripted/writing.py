@@ -77,8 +77,9 @@ def compose(obs: Observation, world: World, draws: np.ndarray, rates: Rates, cru
     phantom = _phantom(obs, draws) if bool(draws[HALLUCINATE] < rates.hallucination) else None
     contradiction = bool(draws[CONTRADICT] < rates.contradiction)
     truth = {
-        "mentioned": (not missed) if present else None,
-        "critical_kind": world.critical_kind,
+        "mentioned": (present and not missed) if obs.ground_truth.critical_kind is not None else None,
+        "in_range": present,
+        "critical_kind": obs.ground_truth.critical_kind,
         "light_stated": belief.light if present and not missed else None,
         "light_wrong": light_wrong,
         "hallucinated": phantom is not None,
