@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 
 import pytest
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 from vdb_labeler_ensemble.answer import ANSWER_FIELDS, InvalidAnswer, parse_answer_text, parse_reply
 from vdb_labeler_ensemble.backends import Reply
@@ -22,12 +22,14 @@ valid_answers = st.fixed_dictionaries({
 }).map(lambda a: {**a, "mention_slot": a["mention_slot"] if a["target_mentioned"] is True else None})
 
 
+@settings(deadline=None)
 @given(valid_answers, st.sampled_from(["{}", "```json\n{}\n```", "```\n{}\n```", "  {}  "]))
 def test_valid_answers_round_trip(answer, wrapper):
     text = wrapper.replace("{}", json.dumps(answer))
     assert parse_answer_text(text, SLOTS) == answer
 
 
+@settings(deadline=None)
 @given(valid_answers, st.sampled_from(ANSWER_FIELDS))
 def test_a_missing_field_is_never_filled_in(answer, missing):
     partial = {k: v for k, v in answer.items() if k != missing}
@@ -45,6 +47,7 @@ bad_values = {
 }
 
 
+@settings(deadline=None)
 @given(valid_answers, st.sampled_from(sorted(bad_values)), st.data())
 def test_a_value_outside_its_domain_makes_the_answer_invalid(answer, name, data):
     bad = data.draw(bad_values[name])

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import pytest
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 from vdb_labeler_ensemble.backends import (
     PROVIDERS,
@@ -44,6 +44,7 @@ def test_options_and_mappings():
 model_names = st.from_regex(r"[A-Za-z0-9][A-Za-z0-9._:/-]{0,30}", fullmatch=True)
 
 
+@settings(deadline=None)
 @given(st.sampled_from(sorted(PROVIDERS)), model_names, st.sampled_from(["", "http://127.0.0.1:8080/v1"]))
 def test_any_model_name_survives_parsing(kind, model, url):
     if kind == "openai-compatible" and not url:
@@ -53,6 +54,7 @@ def test_any_model_name_survives_parsing(kind, model, url):
     assert spec.base_url == (url or PROVIDERS[kind].base_url)
 
 
+@settings(deadline=None)
 @given(st.sampled_from(sorted(PROVIDERS)), model_names)
 def test_identity_changes_with_everything_that_changes_answers(kind, model):
     url = "@http://127.0.0.1:1/v1"

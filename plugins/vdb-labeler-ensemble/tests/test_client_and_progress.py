@@ -8,7 +8,7 @@ import io
 import httpx
 import numpy as np
 import pytest
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 from vdb_labeler_ensemble.backends import parse_backend
 from vdb_labeler_ensemble.client import (
@@ -49,6 +49,7 @@ def client_for(handler, clock, seed=0, **policy):
 OK = {"choices": [{"message": {"content": "{}"}, "finish_reason": "stop"}]}
 
 
+@settings(deadline=None, max_examples=25)  # each example builds two HTTP clients
 @given(st.integers(0, 2**32 - 1))
 def test_backoff_is_reproducible_from_the_seed_and_bounded(seed):
     runs = []

@@ -5,7 +5,7 @@ from __future__ import annotations
 import io
 
 import pytest
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 from vdb_labeler_ensemble.backends import Reply, parse_backend
 from vdb_labeler_ensemble.cache import ResponseCache, cache_key
@@ -33,6 +33,7 @@ def test_slotted_cots_and_empty_scenes_render_readably():
     assert "Actors present (nothing else is there): none" in describe_context(EMPTY)
 
 
+@settings(deadline=None)
 @given(st.dictionaries(st.sampled_from(["critical_kind", "critical_position", "ego_speed", "actors", "lead_gap",
                                         "blocking", "other"]),
                        st.one_of(st.none(), st.floats(), st.text(max_size=8), st.booleans(),
@@ -97,6 +98,7 @@ def key_of(p):
     return cache_key(spec.identity(), p["version"], p["digest"], p["text"], p["slots"], p["context"])
 
 
+@settings(deadline=None)
 @given(parts, parts)
 def test_cache_keys_are_equal_exactly_when_everything_that_matters_is(a, b):
     same = all(a[k] == b[k] for k in a) and list(a["slots"]) == list(b["slots"])

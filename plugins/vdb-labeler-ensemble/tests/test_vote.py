@@ -5,7 +5,7 @@ from __future__ import annotations
 from collections import Counter
 
 import pytest
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 from vdb_labeler_ensemble.answer import ANSWER_FIELDS
 from vdb_labeler_ensemble.vote import MISSING, decide, resolve, top_values
@@ -15,6 +15,7 @@ value = st.one_of(st.sampled_from(STATED_ACTIONS), st.booleans(), st.none())
 votes = st.lists(value, min_size=1, max_size=9)
 
 
+@settings(deadline=None)
 @given(votes, st.one_of(st.just(MISSING), value))
 def test_the_winner_has_the_most_votes(values, tie_value):
     outcome = resolve(values, tie_value)
@@ -27,6 +28,7 @@ def test_the_winner_has_the_most_votes(values, tie_value):
         assert len(outcome.tied) >= 2
 
 
+@settings(deadline=None)
 @given(votes, st.one_of(st.just(MISSING), value), st.randoms())
 def test_order_of_votes_does_not_matter(values, tie_value, rnd):
     shuffled = list(values)
@@ -34,6 +36,7 @@ def test_order_of_votes_does_not_matter(values, tie_value, rnd):
     assert resolve(values, tie_value) == resolve(shuffled, tie_value)
 
 
+@settings(deadline=None)
 @given(value, st.lists(value, max_size=6), st.one_of(st.just(MISSING), value))
 def test_a_strict_majority_always_wins_and_ignores_the_tie_breaker(winner, others, tie_value):
     others = [v for v in others if repr(v) != repr(winner)]
@@ -42,6 +45,7 @@ def test_a_strict_majority_always_wins_and_ignores_the_tie_breaker(winner, other
     assert outcome.resolved and outcome.decided_by == "majority" and repr(outcome.value) == repr(winner)
 
 
+@settings(deadline=None)
 @given(st.lists(st.sampled_from(STATED_ACTIONS), min_size=2, max_size=5, unique=True), value)
 def test_the_tie_breaker_picks_only_among_the_tied(distinct, tie_value):
     outcome = resolve(distinct, tie_value)  # every value once: all tied
@@ -75,6 +79,7 @@ answers = st.fixed_dictionaries({
 ensembles = st.dictionaries(st.sampled_from(["a", "b", "c", "d", "e"]), answers, max_size=5)
 
 
+@settings(deadline=None)
 @given(ensembles, st.booleans(), st.booleans(), st.integers(1, 5), st.one_of(st.none(), answers))
 def test_decide_never_defaults_a_label(ensemble, has_critical, slotted, min_votes, tie):
     decision = decide(ensemble, has_critical=has_critical, slotted=slotted, min_votes=min_votes, tie_answer=tie)
@@ -99,6 +104,7 @@ def test_decide_never_defaults_a_label(ensemble, has_critical, slotted, min_vote
         assert slotted and decision.values["target_mentioned"] is True
 
 
+@settings(deadline=None)
 @given(st.lists(answers, min_size=1, max_size=5))
 def test_unanimity_is_always_decided_as_is(copies):
     one = copies[0]
