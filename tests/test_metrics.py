@@ -284,3 +284,10 @@ def test_intervention_episodes_are_not_observational_data(tmp_path, fx):
     label_all(tmp_path, fx)
     table = MentionRate().compute(load_dataset(tmp_path))[0]
     assert sum(table.cell("Pedestrian (in-lane)", c).count for c in range(3)) == 115
+
+
+@given(d=st.floats(-100, 200, allow_nan=False))
+def test_distance_zones_partition_the_route(d):
+    zone = distance_zone(d)
+    assert zone == ("past" if d < 0 else "near" if d < 10 else "med" if d <= 20 else "far")
+    assert distance_zone(None) is None and distance_zone(math.inf) is None

@@ -247,3 +247,12 @@ def _dataset():
     from vladrivebench.metrics import AnalysisDataset
 
     return AnalysisDataset(directory=Path("d"), episodes=[])
+
+
+def test_two_labelers_of_one_run_are_compared_through_their_stores(run_dir, fx, capsys):
+    vdb(fx, capsys, "label", str(run_dir), "--labeler", "fake", "--quiet")
+    vdb(fx, capsys, "label", str(run_dir), "--labeler", "planning", "--quiet")
+    code, out, _ = vdb(fx, capsys, "labels", "agree", str(run_dir / "labels" / "fake.jsonl"),
+                       str(run_dir / "labels" / "planning.jsonl"))
+    stored = len(LabelStore(run_dir, "fake"))
+    assert code == 0 and out.startswith(f"{stored} items compared") and "stated_action: κ = 1.000" in out

@@ -236,15 +236,15 @@ def labels_group() -> None:
 @click.argument("second", type=click.Path(path_type=Path))
 @click.option("--json", "as_json", is_flag=True, help="Print the agreement as JSON.")
 def agree_command(first: Path, second: Path, as_json: bool) -> None:
-    """Cohen's κ per property between two JSONL label files (e.g. a labeler against a gold file).
+    """Cohen's κ per property between two label sources (e.g. a labeler against a gold file).
 
-    Items are matched by "id"; each line needs a "labels" object.
+    Each is a JSONL label file (items matched by "id"; every line needs a "labels" object) or a run's
+    label store DIR/labels/NAME.jsonl (items matched by CoT + context), so two labelers of one run compare.
     """
-    from .labels import agreement, read_jsonl
+    from .labels import agreement, read_label_source
     from .report import dumps
 
-    a = {e.id: e.labels for e in read_jsonl(first, need_labels=True)}
-    b = {e.id: e.labels for e in read_jsonl(second, need_labels=True)}
+    a, b = read_label_source(first), read_label_source(second)
     report = agreement(a, b)
     if report.compared == 0:
         raise ConfigError(f"{first} and {second} have no labelled item in common (items are matched by \"id\")")

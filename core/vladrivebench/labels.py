@@ -331,6 +331,26 @@ def write_jsonl(path: Path | str, items: Sequence[JsonlItem], labels: Sequence[L
         raise ConfigError(f"{path}: cannot write ({exc.strerror})") from None
 
 
+def read_label_source(path: Path | str) -> dict[str, Labels]:
+    """Labels by item from a JSONL label file (``id`` → labels) or a label store of a run directory
+    (``DIR/labels/NAME.jsonl``: content hash → the latest labels), so two labelers of one run compare too."""
+    path = Path(path)
+    try:
+        first = next((line for line in path.open(encoding="utf-8") if line.strip()), "")
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: no such file") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"{path}: cannot read ({exc})") from None
+    try:
+        head = json.loads(first) if first else {}
+    except ValueError:
+        head = {}
+    if isinstance(head, dict) and {"key", "content", "labeler", "labels"} <= set(head):
+        store = LabelStore(path.parent.parent, path.stem)
+        return {content: stored.labels for content, stored in store.by_content.items()}
+    return {e.id: e.labels for e in read_jsonl(path, need_labels=True)}
+
+
 # -- agreement ------------------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class PropertyAgreement:
