@@ -184,3 +184,23 @@ def test_the_stop_sign_is_released_once_the_stop_is_made():
     assert model.perceive(moving_again).stop_made is True
     model.reset(1)
     assert model.perceive(moving_again).stop_made is False
+
+
+@given(forward=st.floats(8.0, 60.0), speed=st.floats(0.0, 8.5), right=st.floats(-1.9, 1.9))
+@settings(max_examples=60, deadline=None)
+def test_with_alpha_one_a_stated_obstacle_is_where_the_stop_ends(forward, speed, right):
+    model = ScriptedModel(alpha=1.0, cot_format="qa", noise=0.0)
+    obs = make_observation(speed=speed)
+    text = {"objects": f"Pedestrian at <{right:.2f}, {forward:.2f}> standing in the lane, blocking the path.",
+            "decision": "You should slow down and stop."}
+    trajectory = model.decode_action(obs, model.splice_cot(obs, text, np.random.default_rng(0)),
+                                     np.random.default_rng(0))
+    room = round(forward, 2) - obs.ego.length / 2 - 0.3 - 4.0  # bumper to the near edge, minus the 4 m gap
+    if room >= 0.05 * speed:
+        assert trajectory.xy[-1, 0] <= room + 1e-6
+    # beside the lane, the same pedestrian is no reason to stop there: the CoT's stop is a plain brake
+    aside = {**text, "objects": text["objects"].replace(f"<{right:.2f},", "<3.50,")}
+    plain = model.decode_action(obs, model.splice_cot(obs, aside, np.random.default_rng(0)), np.random.default_rng(0))
+    braking = speed * speed / (2 * 3.0)  # from the current speed at the comfortable 3 m/s²
+    # (a stop shorter than half a step at the current speed cannot be planned: it takes that half step)
+    assert braking - speed * 0.1 - 1e-6 <= plain.xy[-1, 0] <= max(braking, 0.05 * speed) + 1e-6
