@@ -113,7 +113,7 @@ def _print_plan(plan: dict[str, dict[str, int]], items: int) -> None:
     print(f"{items} CoTs")
     width = max(len(name) for name in plan)
     for name, counts in plan.items():
-        extra = f", {counts['possible']} more possible" if "possible" in counts else ""
+        extra = f" (an upper bound: at least {counts['at_least']})" if "at_least" in counts else ""
         print(f"{name:<{width}}  calls {counts['calls']:>6}  cached {counts['cached']:>6}{extra}")
 
 

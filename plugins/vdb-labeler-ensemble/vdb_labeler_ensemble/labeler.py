@@ -162,8 +162,9 @@ class EnsembleLabeler:
     def plan(self, items: Sequence[LabelInput]) -> dict[str, dict[str, int]]:
         """For ``--dry-run``: per backend, how many calls a run would make and how many are cached.
 
-        The tie-breaker's entry counts the items whose cached votes are already known to be split
-        (``calls``/``cached``) and those that might need it once the missing votes are in (``possible``).
+        The tie-breaker is asked only about split votes, so its ``calls`` is an upper bound: the items whose
+        cached votes are known to split, plus every item whose votes are not all in yet; ``at_least``
+        counts the first kind only.
         """
         items = list(items)
         rendered = [self.prompt.render(item) for item in items]
@@ -338,7 +339,7 @@ class EnsembleLabeler:
                 known.append(self._calls_for(item, msgs, [self.tie_breaker])[0].key)
         unique = set(known)
         hits = len(self.cache.get_many(unique))
-        return {"calls": len(unique) - hits, "cached": hits, "possible": possible}
+        return {"calls": len(unique) - hits + possible, "cached": hits, "at_least": len(unique) - hits}
 
 
 def _check_tie_breaker(tie_breaker: BackendSpec | None, backends: Sequence[BackendSpec]) -> None:
