@@ -48,7 +48,7 @@ from . import network
 from .lights import ego_colour, frozen_state
 from .scripted import ScriptedUser
 from .session import SumoSession, netconvert_binary, sumo_version
-from .traffic import TrafficDensity, routes_xml
+from .traffic import TrafficDensity, routes_xml, trips_between
 
 SUPPORTED_FEATURES = frozenset(
     {f"layout:{name}" for name in ("straight", "t_junction", "four_way")}
@@ -79,6 +79,7 @@ SUMO_OPTIONS = (
     "--collision.mingap-factor", "0",
     "--lateral-resolution", "0.5",  # the sublane model: SUMO's collision check sees lateral offsets
     "--time-to-teleport", "-1",
+    "--ignore-route-errors", "true",  # a background trip with no route is dropped, not fatal
     "--pedestrian.model", "striping",
     "--begin", "0",
 )
@@ -184,7 +185,11 @@ class SumoSimulator:
 
             self._native = NativePersons(sumo, scenario, world, self.users)
         self._add_road_users()
-        self.truth = TruthTracker(scenario, self.road)
+        # Where crossing pedestrians cross: a scripted one where its (jittered) script puts it, a SUMO-walked
+        # one on the SUMO crossing built at the scenario's crossing line.
+        crossing = {u.spec.id: u.s if self._native is None or not self._native.handles(u.spec.id) else u.spec.s
+                    for u in self.users if u.spec.motion == "cross"}
+        self.truth = TruthTracker(scenario, self.road, crossing)
         self.step_index = 0
         self._terminal = None
         # One step to insert the new road users, one with them placed: a person placed in the step it
@@ -222,17 +227,22 @@ class SumoSimulator:
     def _build_world(self, scenario: Scenario) -> World:
         what = f"scenario {scenario.source or scenario.id}"
         if self.user_net is not None:
-            road, net, ends, sidewalks, edges, lane, tls, approach = self.user_net.world(scenario, self.libsumo)
+            user = self.user_net.world(scenario)
+            road, net, edges, lane, tls, approach = (user.road, user.net, user.route_edges, user.ego_lane,
+                                                     user.tls, user.approach)
+            drives, walks = user.drives, user.walks
             crossing_nodes: dict[str, str] = {}
         else:
             road = build_road(scenario)
             plan = network.plan_network(scenario, road)
             net = network.build_network(plan, self.netconvert, self.sumo_version, self.cache_dir, what)
-            ends, sidewalks, edges, lane = plan.ends, plan.has_sidewalks, plan.route, plan.ego_lane
+            edges, lane = plan.route, plan.ego_lane
             tls, approach, crossing_nodes = plan.tls, plan.feature_approach, dict(plan.crossing_nodes)
+            drives, walks = trips_between(plan.ends, plan.has_sidewalks)
         routes = None
         if not self.density.empty:
-            text = routes_xml(ends, self.density, sidewalks)
+            end_s = math.ceil(self.warmup_steps * self.dt + scenario.max_time_s + 10.0)
+            text = routes_xml(drives, walks, self.density, end_s)
             routes = _cached_text(self.cache_dir, text, ".rou.xml")
         return World(road, net, routes, tuple(edges), lane, tls, approach, crossing_nodes)
 

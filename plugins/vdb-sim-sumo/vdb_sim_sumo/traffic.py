@@ -18,7 +18,6 @@ BACKGROUND_PREFIX = "bg."
 """SUMO ids of background road users start with this; they appear in the ground truth under that id."""
 CAR_SIZE = (4.6, 1.9, 1.5)
 PEDESTRIAN_SIZE = (0.5, 0.6, 1.75)
-FLOW_END_S = 1.0e6
 
 
 @dataclass(frozen=True)
@@ -33,8 +32,27 @@ class TrafficDensity:
         return self.vehicles_per_hour <= 0 and self.pedestrians_per_hour <= 0
 
 
-def routes_xml(ends: tuple[RoadEnd, ...], density: TrafficDensity, sidewalks: bool) -> str:
-    """A SUMO routes file with the vehicle types and the flows of ``density`` between ``ends``."""
+@dataclass(frozen=True)
+class Trip:
+    """One origin-destination pair of the background traffic: ``name`` (unique) and its two edges."""
+
+    name: str
+    origin: str
+    destination: str
+
+
+def trips_between(ends: tuple[RoadEnd, ...], sidewalks: bool) -> tuple[list[Trip], list[Trip]]:
+    """Vehicle trips from every end of the network to every other end, and walks between every pair of ends
+    (a walk from an end back to the same end crosses the road there, or walks back on the other side)."""
+    drives = [Trip(f"{a.name}-{b.name}", a.enter, b.leave) for a in ends for b in ends if a.name != b.name]
+    walks = [Trip(f"{a.name}-{b.name}", a.enter, b.leave) for a in ends for b in ends] if sidewalks else []
+    return drives, walks
+
+
+def routes_xml(drives: list[Trip], walks: list[Trip], density: TrafficDensity, end_s: float) -> str:
+    """A SUMO routes file with the vehicle types and the flows of ``density`` over ``drives`` and ``walks``,
+    from time 0 to ``end_s``. (Flows end with the episode: SUMO lists persons slower the longer a person
+    flow lasts, 70 ms per step for a flow that never ends.)"""
     car_l, car_w, car_h = CAR_SIZE
     ped_l, ped_w, ped_h = PEDESTRIAN_SIZE
     lines = [
@@ -43,24 +61,23 @@ def routes_xml(ends: tuple[RoadEnd, ...], density: TrafficDensity, sidewalks: bo
         'speedDev="0.1"/>',
         f'    <vType id="bg.ped" vClass="pedestrian" length="{ped_l}" width="{ped_w}" height="{ped_h}"/>',
     ]
-    pairs = [(a, b) for a in ends for b in ends if a.name != b.name]
-    if pairs and density.vehicles_per_hour > 0:
-        rate = density.vehicles_per_hour / len(pairs) / 3600.0
-        for a, b in pairs:
+    if drives and density.vehicles_per_hour > 0:
+        rate = density.vehicles_per_hour / len(drives) / 3600.0
+        for trip in drives:
             lines.append(
-                f"    <flow id={quoteattr(f'{BACKGROUND_PREFIX}car.{a.name}-{b.name}')} type=\"bg.car\" "
-                f"from={quoteattr(a.enter)} to={quoteattr(b.leave)} begin=\"0\" end=\"{FLOW_END_S:g}\" "
-                f'period="exp({rate:.9g})" departLane="best" departSpeed="max"/>'
+                f"    <flow id={quoteattr(f'{BACKGROUND_PREFIX}car.{trip.name}')} type=\"bg.car\" "
+                f"from={quoteattr(trip.origin)} to={quoteattr(trip.destination)} begin=\"0\" "
+                f'end="{end_s:g}" period="exp({rate:.9g})" departLane="best" departSpeed="max"/>'
             )
-    walks = [(a, b) for a in ends for b in ends] if sidewalks else []
     if walks and density.pedestrians_per_hour > 0:
         rate = density.pedestrians_per_hour / len(walks) / 3600.0
-        for a, b in walks:
-            # A walk starts anywhere along its first edge and may end on the same road's other side.
+        for trip in walks:
+            # A walk starts anywhere along its first edge and ends anywhere along its last.
             lines.append(
-                f"    <personFlow id={quoteattr(f'{BACKGROUND_PREFIX}ped.{a.name}-{b.name}')} type=\"bg.ped\" "
-                f'begin="0" end="{FLOW_END_S:g}" period="exp({rate:.9g})" departPos="random">'
-                f"<walk from={quoteattr(a.enter)} to={quoteattr(b.leave)} arrivalPos=\"random\"/></personFlow>"
+                f"    <personFlow id={quoteattr(f'{BACKGROUND_PREFIX}ped.{trip.name}')} type=\"bg.ped\" "
+                f'begin="0" end="{end_s:g}" period="exp({rate:.9g})" departPos="random">'
+                f"<walk from={quoteattr(trip.origin)} to={quoteattr(trip.destination)} arrivalPos=\"random\"/>"
+                "</personFlow>"
             )
     lines.append("</routes>")
     return "\n".join(lines) + "\n"
