@@ -130,7 +130,7 @@ class EnsembleLabeler:
             tie_calls = {i: self._calls_for(items[i], rendered[i], [self.tie_breaker])[0]
                          for i, d in enumerate(decisions) if d.needs_tie_breaker}
             outcomes.update(self._run(list(tie_calls.values()), "tie-breaker"))
-        return [self._labels(i, item, votes[i], decisions[i], tie_calls.get(i), outcomes)
+        return [self._labels(item, votes[i], decisions[i], tie_calls.get(i), outcomes)
                 for i, item in enumerate(items)]
 
     # -- what the `vdb label` command calls ----------------------------------------------------------
@@ -282,7 +282,7 @@ class EnsembleLabeler:
         return decide(answers, has_critical=bool(item.context.get("critical_kind")), slotted=bool(item.slots),
                       min_votes=self.min_votes, tie_answer=tie_answer)
 
-    def _labels(self, index: int, item: LabelInput, votes: tuple[dict[str, Any], dict[str, Any]],
+    def _labels(self, item: LabelInput, votes: tuple[dict[str, Any], dict[str, Any]],
                 decision: Decision, tie_call: _Call | None, outcomes: Mapping[str, Outcome]) -> Labels:
         answers, record = votes
         tie_record: dict[str, Any] | None = None
