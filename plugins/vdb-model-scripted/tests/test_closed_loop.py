@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import pytest
-from vdb_model_scripted.model import ScriptedModel, truth_policy
+from vdb_model_scripted.model import ScriptedModel
 from vdb_model_scripted.reading import named_kinds
 from vdb_sim_kinematic.plugin import make_simulator  # a test dependency (the `test` extra)
 from vladrivebench.controllers import MPCController, PIDController
@@ -23,7 +23,7 @@ def drive(suite, scenario_id, model, controller=None, seed=0, max_steps=220):
         steps.append((obs, cot, trajectory, control, extras))
 
     result = run_episode(model, make_simulator(render=False), controller or PIDController(), suite[scenario_id],
-                         seed, policy=truth_policy, on_step=on_step, max_steps=max_steps)
+                         seed, on_step=on_step, max_steps=max_steps)
     return result, steps
 
 

@@ -204,3 +204,14 @@ def test_with_alpha_one_a_stated_obstacle_is_where_the_stop_ends(forward, speed,
     braking = speed * speed / (2 * 3.0)  # from the current speed at the comfortable 3 m/s²
     # (a stop shorter than half a step at the current speed cannot be planned: it takes that half step)
     assert braking - speed * 0.1 - 1e-6 <= plain.xy[-1, 0] <= max(braking, 0.05 * speed) + 1e-6
+
+
+def test_cot_extras_expose_the_truth_of_own_cots_only():
+    import json
+
+    model, obs = ScriptedModel(hallucination_rate=1.0), make_observation(kind="pedestrian", distance=20.0)
+    own = model.generate_cot(obs, np.random.default_rng(0))
+    extras = model.cot_extras(own)
+    assert extras == {"scripted_truth": cot_truth(own)} and extras["scripted_truth"]["hallucinated"] is True
+    assert json.loads(json.dumps(extras)) == extras  # JSON-able for the episode log
+    assert model.cot_extras(model.splice_cot(obs, own.text, np.random.default_rng(0))) is None

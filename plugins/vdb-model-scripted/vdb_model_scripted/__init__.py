@@ -5,7 +5,7 @@ Importing this package is cheap: the model and its helpers load on first use.
 
 - :class:`ScriptedModel` — the model (the plugin registers it as ``scripted``);
 - :func:`cot_truth` — what the model knows it wrote in a CoT it generated (mention, hallucination, …);
-- :func:`truth_policy` — a runner step policy that logs that truth in ``/extras``.
+  (``ScriptedModel.cot_extras`` hands it to the runner, which logs it in ``/extras`` as ``scripted_truth``).
 """
 
 from __future__ import annotations
@@ -13,11 +13,11 @@ from __future__ import annotations
 from typing import Any
 
 __version__ = "0.1.0"
-__all__ = ["ScriptedModel", "cot_truth", "truth_policy", "__version__"]
+__all__ = ["ScriptedModel", "cot_truth", "__version__"]
 
 
 def __getattr__(name: str) -> Any:
-    if name in {"ScriptedModel", "cot_truth", "truth_policy"}:
+    if name in {"ScriptedModel", "cot_truth"}:
         from . import model
 
         return getattr(model, name)

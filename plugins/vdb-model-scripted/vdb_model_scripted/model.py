@@ -167,6 +167,12 @@ class ScriptedModel:
             return read_slots(cot.slots)
         return read_sentence(cot.text) if not self.cot_format.is_slotted else read_slots({"decision": cot.text})
 
+    def cot_extras(self, cot: CoT) -> dict[str, Any] | None:
+        """``{"scripted_truth": cot_truth(cot)}`` for a CoT the model generated (the runner's default
+        step policy logs it in ``/extras``), ``None`` for a spliced one."""
+        truth = cot_truth(cot)
+        return {"scripted_truth": truth} if truth is not None else None
+
     def state_digest(self, cot: CoT) -> str:
         """sha256 of the canonical reading: everything :meth:`decode_action` takes from the CoT."""
         return self.reading(cot).digest()
@@ -211,15 +217,3 @@ def _number(name: str, value: Any, low: float, high: float, expected: str) -> fl
             or not low <= value <= high:
         raise ConfigError(f"model 'scripted': option {name} must be a number {expected}, got {value!r}")
     return float(value)
-
-
-def truth_policy(model: Any, obs: Observation, seed: int) -> tuple[CoT, Trajectory, dict[str, Any]]:
-    """A step policy (for :func:`vladrivebench.runner.run_episode`) that drives like the default one —
-    the model's own CoT and the action decoded from it, on the same pinned RNG streams — and logs what
-    the scripted model knows about its CoT in ``/extras`` as ``scripted_truth``."""
-    from vladrivebench.rng import step_rng
-
-    cot = model.generate_cot(obs, step_rng(seed, obs.step, "cot"))
-    trajectory = model.decode_action(obs, cot, step_rng(seed, obs.step, "action"))
-    truth = cot_truth(cot)
-    return cot, trajectory, ({"scripted_truth": truth} if truth is not None else {})
