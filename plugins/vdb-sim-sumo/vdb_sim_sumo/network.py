@@ -184,13 +184,18 @@ _TYPE_RANK = {"priority": 0, "allway_stop": 1, "traffic_light": 2}
 
 
 def _merge(splits: list[_Split]) -> list[_Split]:
-    """Overlapping mid-road nodes become one (a light and a crossing at the same place share a node)."""
+    """Overlapping mid-road nodes become one (a light and a crossing at the same place share a node). A
+    light's or stop sign's node keeps starting at its stop line: a crossing merged into it is served by
+    that node's crossing, up to half a crossing width from its own line."""
     merged: list[_Split] = []
     for split in sorted(splits, key=lambda s: s.start):
         last = merged[-1] if merged else None
         if last is not None and split.start <= last.end + 0.5:
             last.end = max(last.end, split.end)
-            last.start = min(last.start, split.start)
+            if split.feature and not last.feature:
+                last.start = split.start
+            elif not last.feature:
+                last.start = min(last.start, split.start)
             last.type = max(last.type, split.type, key=_TYPE_RANK.__getitem__)
             last.crossing = last.crossing or split.crossing
             last.feature = last.feature or split.feature
