@@ -162,6 +162,7 @@ class _Slot:
 def _worker_main(conn: Any, worker: Callable[[Any], Any]) -> None:
     """A worker process: receive jobs until told to stop (None) or the parent goes away."""
     _die_with_parent()
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the driver's to handle: it stops the pool
     while True:
         try:
             job = conn.recv()
