@@ -22,4 +22,4 @@ lint:
 	$(PYTHON) -m ruff check .
 
 bench:
-	@for script in benchmarks/*.py; do echo "== $$script"; $(PYTHON) $$script; done
+	@for script in benchmarks/*.py plugins/*/benchmarks/*.py; do echo "== $$script"; $(PYTHON) $$script; done
