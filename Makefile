@@ -21,5 +21,7 @@ test: install
 lint:
 	$(PYTHON) -m ruff check .
 
+BENCHMARKS := $(sort $(wildcard benchmarks/*.py plugins/*/benchmarks/*.py))
+
 bench:
-	@for script in benchmarks/*.py plugins/*/benchmarks/*.py; do echo "== $$script"; $(PYTHON) $$script; done
+	@for script in $(BENCHMARKS); do echo "== $$script"; $(PYTHON) $$script || exit 1; done
