@@ -12,7 +12,8 @@ coordinate is not relied upon (conventions differ), only its magnitude.
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
+from typing import Any
 
 # -- vocabulary ---------------------------------------------------------------------------------------
 ROAD_USERS = ("pedestrian", "car", "animal", "cyclist")
@@ -101,6 +102,7 @@ STATIONARY_WORDS = r"stationary|stopped|parked|standing|stands|waiting|idle|immo
 _MOVING = re.compile(rf"\b(?:{MOVING_WORDS})\b")
 _STATIONARY = re.compile(rf"\b(?:{STATIONARY_WORDS})\b")
 _PRE_ATTRIBUTE = re.compile(rf"\b({MOVING_WORDS}|{STATIONARY_WORDS})\s+(?:(?!the\b|a\b|an\b|our\b)\w+\s+)?$")
+_ATTR_STOP_SENTENCE = re.compile(r"[;:.]|\b(?:may|might|could|will|because|since)\b")
 _ATTR_STOP = re.compile(r"[,;:.]|\b(?:and|then|but|because|since|so|to|until|while|when|once|as|after|before|or"
                         r"|if|may|might|could|will)\b")
 
@@ -270,14 +272,18 @@ def _mention(text: str, match: re.Match, kind: str, slot: str | None, breaks: li
     elif _HEDGE_CUE.search(before):
         status = "hedged"
     position = _position_after(text[end:], positions)
-    is_subject = subject_kind == kind and subject_position is not None and position is None \
-        and _ORION_SUBJECT.match(text) and start < _ORION_SUBJECT.match(text).end()
-    if is_subject:
+    # "Car at <0.02, 29.98> directly in front …, moving at a similar speed": the sentence describes it
+    describes_sentence = subject_kind == kind and (position is not None or _is_sentence_subject(text, start))
+    if position is None and describes_sentence:
         position = subject_position
-    motion = _motion(text, start, end, whole_sentence=bool(is_subject) or position is not None
-                     and subject_kind == kind)
+    motion = _motion(text, start, end, whole_sentence=describes_sentence)
     colour = _colour(text, match, before) if kind == "traffic_light" and status == "asserted" else None
     return Mention(kind, match.group(0), slot, status, qualified, position, motion, False, colour)
+
+
+def _is_sentence_subject(text: str, start: int) -> bool:
+    head = _ORION_SUBJECT.match(text)
+    return head is not None and start < head.end()
 
 
 def _position_after(rest: str, positions: list) -> tuple[float, float] | None:
@@ -301,9 +307,6 @@ def _motion(text: str, start: int, end: int, whole_sentence: bool) -> frozenset[
         if hit and not _NOT_BEFORE.search(window[: hit.start()]):
             claims.add(name)
     return frozenset(claims)
-
-
-_ATTR_STOP_SENTENCE = re.compile(r"[;:.]|\b(?:may|might|could|will|because|since)\b")
 
 
 def _colour(text: str, match: re.Match, before: str) -> str | None:
@@ -348,10 +351,8 @@ def _claims(text: str, slot: str | None) -> list[Claim]:
     return [c for _, c in found]
 
 
-def _replace(mention: Mention, **changes) -> Mention:
-    from dataclasses import replace
-
-    return replace(mention, **changes)
+def _replace(record: Any, **changes: Any) -> Any:
+    return replace(record, **changes)
 
 
 def go_or_stop(action: str) -> str | None:
