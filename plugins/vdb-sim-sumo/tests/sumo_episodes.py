@@ -55,3 +55,32 @@ def truth_differences(a: GroundTruth, b: GroundTruth, distance_tol: float) -> li
         if getattr(a, name) != getattr(b, name):
             out.append(f"{name} {getattr(a, name)!r} vs {getattr(b, name)!r}")
     return out
+
+
+def drive(simulator, scenario: Scenario, seed: int, steps: int, on_step=None) -> list[Observation]:
+    """Up to ``steps`` observations of the scripted model (PID) driving ``scenario`` on ``simulator``;
+    ``on_step(obs)`` runs at each step while the simulation is live."""
+    from vdb_model_scripted.plugin import make_scripted
+    from vladrivebench.controllers import PIDController
+
+    model, controller = make_scripted(), PIDController()
+    obs = simulator.reset(scenario, seed)
+    model.reset(seed)
+    controller.reset()
+    seen = [obs]
+    if on_step is not None:
+        on_step(obs)
+    while not obs.ground_truth.terminal and len(seen) < steps:
+        _, trajectory, _ = own_cot_policy(model, obs, seed)
+        obs = simulator.step(controller.control(trajectory, obs.ego, simulator.dt))
+        seen.append(obs)
+        if on_step is not None:
+            on_step(obs)
+    return seen
+
+
+def actor_trace(observations: list[Observation]) -> list[tuple]:
+    """Everything about the road users, step by step, to compare two episodes exactly."""
+    return [(o.step, o.ego.x, o.ego.y, o.ego.speed,
+             tuple((a.actor_id, a.kind, a.x, a.y, a.yaw, a.speed) for a in o.ground_truth.actors),
+             o.ground_truth.collisions, o.ground_truth.violations) for o in observations]

@@ -1,12 +1,14 @@
 """Pedestrians walked by SUMO (``pedestrians="sumo"``): SUMO persons on sidewalks, walking areas and crossings.
 
-A moving scenario pedestrian (or animal) becomes a SUMO person whose plan is: wait (until the ego
-reaches its trigger), walk, wait. The walk is SUMO's own route for it — for ``cross`` from the sidewalk
-where it starts, through the walking area, over the crossing netconvert built at its crossing line (a
-mid-block zebra or the junction's crossing) to the sidewalk on the other side; for ``along`` along the
-sidewalk it stands on, 200 m in its direction — at the scenario's speed, moved by SUMO's striping model
-(no dawdling, so the speed is the scenario's). While a person waits, SUMO would draw it beside the road,
-so it is held where it stands (its scenario position before the walk, where the walk ended after it).
+A moving scenario pedestrian (or animal) is a SUMO person while it walks: when the ego reaches its trigger
+it becomes a person whose walk is SUMO's own route for it — for ``cross`` from the sidewalk where it
+stands, through the walking area, over the crossing netconvert built at its crossing line (a mid-block
+zebra or the junction's crossing) to the sidewalk on the other side; for ``along`` along the sidewalk it
+stands on, 200 m in its direction — at the scenario's speed, moved by SUMO's striping model (no dawdling,
+so the speed is the scenario's), yielding to vehicles as SUMO's pedestrians do. Before its walk and after
+it, it stands: a placed stand-in like every scripted road user (SUMO draws a waiting person beside the road,
+and moving a person onto a walking area crashes the striping model), where the scenario puts it and where
+its walk ended.
 
 SUMO persons walk only on pedestrian lanes: a moving pedestrian whose path lies in a traffic lane (walking
 along the ego's lane, crossing from or to the middle of the road) cannot be represented and is refused
@@ -18,20 +20,23 @@ from __future__ import annotations
 
 import math
 import warnings
+from dataclasses import dataclass, replace
 from typing import Any
 
 from vladrivebench.errors import ScenarioError
+from vladrivebench.records import Actor
 from vladrivebench.scenarios import Scenario
 
 from .scripted import ScriptedUser
 
 PERSON_KINDS = ("pedestrian", "animal")
+PERSON_PREFIX = "vdb.person."
 ALONG_DISTANCE = 200.0
 """How far (m) an ``along`` walker's SUMO route reaches (scenario walkers walk on for the whole episode)."""
 SIDEWALK_TOLERANCE = 0.3
 """How far (m) outside a sidewalk a walker may start or end and still count as on it (the kerb)."""
-HOLD = "hold"
-WALK = "walk"
+WAITING, WALKING, STOPPED = "waiting", "walking", "stopped"
+_STAGE_WAITING, _STAGE_WALKING = 1, 2
 
 
 def walkers(scenario: Scenario) -> list[Any]:
@@ -65,18 +70,29 @@ def check_walkable(scenario: Scenario, world: Any) -> None:
                 )
 
 
+@dataclass
+class _Walker:
+    """One SUMO-walked road user: its phase, its walk and the pose it stands at when not walking."""
+
+    user: ScriptedUser
+    edges: list[str]
+    depart_pos: float
+    arrival_pos: float
+    phase: str = WAITING
+    pose: Actor | None = None
+
+
 class NativePersons:
     """The SUMO-walked pedestrians of one episode (see the module docstring)."""
 
-    def __init__(self, sumo: Any, scenario: Scenario, world: Any, users: list[ScriptedUser]):
-        import sumolib
-
+    def __init__(self, sumo: Any, scenario: Scenario, world: Any):
         self.sumo, self.world = sumo, world
         self.ids = {spec.id for spec in walkers(scenario)}
-        self.phase: dict[str, str] = {}
-        self.hold_at: dict[str, tuple[float, float, float]] = {}
+        self.walkers: dict[str, _Walker] = {}
         self.net = None
         if self.ids:
+            import sumolib
+
             with warnings.catch_warnings():  # sumolib's note that the optional rtree index is missing
                 warnings.simplefilter("ignore")
                 self.net = sumolib.net.readNet(str(world.net))
@@ -84,8 +100,11 @@ class NativePersons:
     def handles(self, actor_id: str) -> bool:
         return actor_id in self.ids
 
-    def add(self, user: ScriptedUser, type_id: str, sumo_id: str) -> None:
-        """Add the person with its plan: wait, walk (SUMO's route), wait."""
+    def walking(self, actor_id: str) -> bool:
+        return actor_id in self.walkers and self.walkers[actor_id].phase == WALKING
+
+    def prepare(self, user: ScriptedUser) -> None:
+        """Plan the walk (SUMO's pedestrian route) and the person's type; it stands where it starts."""
         sumo, spec, route = self.sumo, user.spec, self.world.road.route
         start = user.actor(route)
         if spec.motion == "cross":
@@ -95,51 +114,60 @@ class NativePersons:
             target = route.to_world(user.s + ahead, user.offset)
         from_edge, from_pos = self._sidewalk(start.x, start.y)
         to_edge, to_pos = self._sidewalk(float(target[0]), float(target[1]))
-        vtype = sumo.vehicletype
-        vtype.setSpeedFactor(type_id, 1.0)
-        vtype.setSpeedDeviation(type_id, 0.0)
-        vtype.setMaxSpeed(type_id, spec.speed)
-        sumo.person.add(sumo_id, from_edge, from_pos, typeID=type_id)
-        sumo.person.appendWaitingStage(sumo_id, 1e7)
         stages = sumo.simulation.findIntermodalRoute(from_edge, to_edge, departPos=from_pos, arrivalPos=to_pos)
-        edges = [e for stage in stages for e in stage.edges] or [from_edge]
-        sumo.person.appendWalkingStage(sumo_id, _dedupe(edges), to_pos, speed=spec.speed)
-        sumo.person.appendWaitingStage(sumo_id, 1e7)
-        self.phase[spec.id] = HOLD
-        self.hold_at[spec.id] = (start.x, start.y, start.yaw)
-        if user.started:
-            self.start(user, sumo_id)
+        edges = _dedupe([e for stage in stages for e in stage.edges]) or [from_edge]
+        type_id = PERSON_PREFIX + spec.id
+        vtype = sumo.vehicletype
+        vtype.copy("DEFAULT_PEDTYPE", type_id)
+        for setter, value in ((vtype.setLength, spec.length), (vtype.setWidth, spec.width),
+                              (vtype.setHeight, spec.height), (vtype.setMaxSpeed, spec.speed),
+                              (vtype.setSpeedFactor, 1.0), (vtype.setSpeedDeviation, 0.0)):
+            setter(type_id, value)
+        self.walkers[spec.id] = _Walker(user, edges, from_pos, to_pos, pose=start)
 
-    def start(self, user: ScriptedUser, sumo_id: str) -> None:
-        """The ego reached the trigger: SUMO walks the person from now on.
+    def start(self, actor_id: str) -> None:
+        """The ego reached the trigger: the person departs on its walk (its stand-in is removed by the
+        caller)."""
+        walker = self.walkers[actor_id]
+        person, person_id = self.sumo.person, PERSON_PREFIX + actor_id
+        person.add(person_id, walker.edges[0], walker.depart_pos, typeID=person_id)
+        person.appendWalkingStage(person_id, walker.edges, walker.arrival_pos, speed=walker.user.spec.speed)
+        person.appendWaitingStage(person_id, 1e7)
+        walker.phase = WALKING
 
-        Holding a person with ``moveToXY`` puts a stage of its own in front of the plan; every stage before
-        the planned walk (that one, the first wait, the departure) is ended, leaving walk + final wait."""
-        person = self.sumo.person
-        while person.getRemainingStages(sumo_id) > 2:
-            person.removeStage(sumo_id, 0)
-        self.phase[user.spec.id] = WALK
+    def update(self, actor_id: str) -> bool:
+        """After a step: the walker's pose from SUMO while it walks; True when its walk just ended (the
+        person is removed; the caller puts its stand-in where it stopped)."""
+        walker = self.walkers[actor_id]
+        if walker.phase != WALKING:
+            return False
+        person, person_id = self.sumo.person, PERSON_PREFIX + actor_id
+        stage = person.getStage(person_id).type
+        if stage == _STAGE_WALKING:
+            spec = walker.user.spec
+            x, y = person.getPosition(person_id)
+            yaw = math.remainder(math.radians(90.0 - person.getAngle(person_id)), 2 * math.pi)
+            walker.pose = Actor(spec.id, spec.kind, x, y, yaw, spec.length, spec.width, spec.height,
+                                max(person.getSpeed(person_id), 0.0))
+            return False
+        if stage == _STAGE_WAITING:
+            person.remove(person_id)
+            walker.phase = STOPPED
+            walker.pose = replace(walker.pose, speed=0.0)
+            return True
+        return False
 
-    def place(self, actor_id: str, sumo_id: str) -> None:
-        """Hold a waiting person where it stands; leave a walking one to SUMO (and note where it is)."""
-        sumo = self.sumo
-        if self.phase[actor_id] == WALK:
-            if sumo.person.getRemainingStages(sumo_id) <= 1 and sumo.person.getStage(sumo_id).type == 1:
-                self.phase[actor_id] = HOLD
-            else:
-                return
-        x, y, yaw = self.hold_at[actor_id]
-        sumo.person.moveToXY(sumo_id, "", x, y, (90.0 - math.degrees(yaw)) % 360.0, 2)
-
-    def observed(self, actor_id: str, x: float, y: float, yaw: float) -> None:
-        """Remember a walking person's last pose, where it will stand once its walk ends."""
-        if self.phase.get(actor_id) == WALK:
-            self.hold_at[actor_id] = (x, y, yaw)
+    def pose(self, actor_id: str) -> Actor:
+        """Where the walker is (standing: where it waits or stopped; walking: where SUMO has it)."""
+        return self.walkers[actor_id].pose
 
     def _sidewalk(self, x: float, y: float) -> tuple[str, float]:
         """The nearest pedestrian lane of a normal (non-junction) edge: (edge id, position along it)."""
         best = None
-        for lane, dist in self.net.getNeighboringLanes(x, y, 8.0):
+        with warnings.catch_warnings():  # sumolib's note that the optional rtree index is missing
+            warnings.simplefilter("ignore")
+            near = self.net.getNeighboringLanes(x, y, 8.0)
+        for lane, dist in near:
             if lane.allows("pedestrian") and (best is None or dist < best[1]):
                 best = (lane, dist)
         if best is None:

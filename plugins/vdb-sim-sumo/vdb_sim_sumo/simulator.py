@@ -46,6 +46,7 @@ from vladrivebench.world.truth import TruthTracker
 
 from . import network
 from .lights import ego_colour, frozen_state
+from .persons import PERSON_PREFIX
 from .scripted import ScriptedUser
 from .session import SumoSession, netconvert_binary, sumo_version
 from .traffic import TrafficDensity, routes_xml, trips_between
@@ -69,6 +70,11 @@ START_CLEARANCE = 30.0
 """Background vehicles within this distance (m) of the ego's start are removed when the episode begins."""
 PERSON_CLEARANCE = 4.0
 """Background pedestrians within this distance (m) of the ego's start are removed when it begins."""
+PEDESTRIAN_OPTIONS = {
+    "scripted": ["--pedestrian.model", "striping"],
+    "sumo": ["--pedestrian.model", "striping", "--pedestrian.striping.dawdling", "0"],
+}
+"""SUMO's pedestrian model per ``pedestrians`` mode (SUMO-walked pedestrians keep the scenario's speed)."""
 SUMO_OPTIONS = (
     "--step-length", f"{bicycle.DT}",
     "--no-step-log", "true",
@@ -80,7 +86,6 @@ SUMO_OPTIONS = (
     "--lateral-resolution", "0.5",  # the sublane model: SUMO's collision check sees lateral offsets
     "--time-to-teleport", "-1",
     "--ignore-route-errors", "true",  # a background trip with no route is dropped, not fatal
-    "--pedestrian.model", "striping",
     "--begin", "0",
 )
 
@@ -163,8 +168,7 @@ class SumoSimulator:
             self.users.append(ScriptedUser.at_start(spec, shift))
         sumo_seed = int(episode_rng(seed, "sumo").integers(0, 2**31 - 1))
         args = ["-n", str(world.net), "--seed", str(sumo_seed), *SUMO_OPTIONS]
-        if self.pedestrians == "sumo":
-            args += ["--pedestrian.striping.dawdling", "0"]  # walkers keep the scenario's speed
+        args += PEDESTRIAN_OPTIONS[self.pedestrians]
         if world.routes is not None:
             args += ["-r", str(world.routes)]
         self.session.begin(args, f"scenario {scenario.source or scenario.id}")
@@ -183,7 +187,7 @@ class SumoSimulator:
         if self.pedestrians == "sumo":
             from .persons import NativePersons
 
-            self._native = NativePersons(sumo, scenario, world, self.users)
+            self._native = NativePersons(sumo, scenario, world)
         self._add_road_users()
         # Where crossing pedestrians cross: a scripted one where its (jittered) script puts it, a SUMO-walked
         # one on the SUMO crossing built at the scenario's crossing line.
@@ -290,34 +294,37 @@ class SumoSimulator:
                          departSpeed="0")
 
     def _add_road_users(self) -> None:
-        """Every scenario road user as a SUMO person (pedestrian, animal) or vehicle (car)."""
-        sumo = self.libsumo
-        route = self.road.route
+        """Every scenario road user gets a stand-in in SUMO: a vehicle of its size (of SUMO's class
+        ``ignoring`` for pedestrians and animals, so it may stand on any lane) placed where the scenario
+        puts it, which SUMO's traffic sees and SUMO's collision check covers. (SUMO persons cannot be
+        placed: the striping model crashes when one is moved onto a walking area, the non-interacting model
+        walks it away.) SUMO-walked pedestrians become SUMO persons while they walk."""
+        vtype = self.libsumo.vehicletype
         for user in self.users:
             spec = user.spec
-            sumo_id = ACTOR_PREFIX + spec.id
-            actor = user.actor(route)
-            type_id = sumo_id
+            type_id = ACTOR_PREFIX + spec.id
+            vtype.copy("DEFAULT_VEHTYPE", type_id)
+            vtype.setVehicleClass(type_id, "passenger")
             if spec.kind in PERSON_KINDS:
-                vtype = "DEFAULT_PEDTYPE"
-            else:
-                vtype = "DEFAULT_VEHTYPE"
-            sumo.vehicletype.copy(vtype, type_id)
-            sumo.vehicletype.setLength(type_id, spec.length)
-            sumo.vehicletype.setWidth(type_id, spec.width)
-            sumo.vehicletype.setHeight(type_id, spec.height)
-            if spec.kind in PERSON_KINDS:
-                if self._native is not None and self._native.handles(spec.id):
-                    self._native.add(user, type_id, sumo_id)
+                vtype.setShapeClass(type_id, "pedestrian")
+            vtype.setMinGap(type_id, 0.0)
+            for setter, value in ((vtype.setLength, spec.length), (vtype.setWidth, spec.width),
+                                  (vtype.setHeight, spec.height)):
+                setter(type_id, value)
+            if self._native is not None and self._native.handles(spec.id):
+                self._native.prepare(user)
+                if user.started:  # no trigger: it walks from the first step
+                    self._native.start(spec.id)
                     continue
-                edge, pos, _ = sumo.simulation.convertRoad(actor.x, actor.y, False, "pedestrian")
-                sumo.person.add(sumo_id, edge, pos, typeID=type_id)
-                sumo.person.appendWaitingStage(sumo_id, 1e7)
-            else:
-                edge, pos, lane = sumo.simulation.convertRoad(actor.x, actor.y, False, "passenger")
-                sumo.route.add(sumo_id, [edge])
-                sumo.vehicle.add(sumo_id, sumo_id, typeID=type_id, depart="now", departLane=str(lane),
-                                 departPos=f"{pos:.3f}", departSpeed="0")
+            self._add_stand_in(spec.id, user.actor(self.road.route))
+
+    def _add_stand_in(self, actor_id: str, actor: Actor) -> None:
+        sumo, sumo_id = self.libsumo, ACTOR_PREFIX + actor_id
+        edge, pos, lane = sumo.simulation.convertRoad(actor.x, actor.y, False, "passenger")
+        route_id = f"{sumo_id}@{sumo.simulation.getTime():g}"
+        sumo.route.add(route_id, [edge])
+        sumo.vehicle.add(sumo_id, route_id, typeID=sumo_id, depart="now", departLane=str(lane),
+                         departPos=f"{pos:.3f}", departSpeed="0")
 
     # -- per step -----------------------------------------------------------------------------------
     def _move_users(self) -> None:
@@ -327,60 +334,75 @@ class SumoSimulator:
             started = user.check_trigger(front)
             if self._native is not None and self._native.handles(user.spec.id):
                 if started:
-                    self._native.start(user, ACTOR_PREFIX + user.spec.id)
+                    self.libsumo.vehicle.remove(ACTOR_PREFIX + user.spec.id)
+                    self._native.start(user.spec.id)
                 continue
             user.advance(route, self.ego, self.dt)
 
     def _place(self) -> None:
-        """Place the ego and the scripted road users in SUMO for the coming step."""
+        """Place the ego and the road users' stand-ins in SUMO for the coming step."""
         sumo = self.libsumo
         ego = self.ego
         fx, fy = ego.to_world_frame(ego.length / 2, 0.0)
         sumo.vehicle.moveToXY(EGO_ID, "", self.world.ego_lane, fx, fy, _sumo_angle(ego.yaw), 2)
-        route = self.road.route
-        for user in self.users:
-            spec = user.spec
-            sumo_id = ACTOR_PREFIX + spec.id
-            if self._native is not None and self._native.handles(spec.id):
-                self._native.place(spec.id, sumo_id)
+        for actor in self._scenario_actors():
+            if self._native is not None and self._native.walking(actor.actor_id):
                 continue
-            actor = user.actor(route)
-            if spec.kind in PERSON_KINDS:
-                sumo.person.moveToXY(sumo_id, "", actor.x, actor.y, _sumo_angle(actor.yaw), 2)
-            else:
-                front = (actor.x + math.cos(actor.yaw) * actor.length / 2,
-                         actor.y + math.sin(actor.yaw) * actor.length / 2)
-                sumo.vehicle.moveToXY(sumo_id, "", -1, front[0], front[1], _sumo_angle(actor.yaw), 2)
+            yaw = self._along_lane(actor)
+            fx = actor.x + math.cos(yaw) * actor.length / 2
+            fy = actor.y + math.sin(yaw) * actor.length / 2
+            sumo.vehicle.moveToXY(ACTOR_PREFIX + actor.actor_id, "", -1, fx, fy, _sumo_angle(yaw), 2)
 
-    def actors(self) -> tuple[Actor, ...]:
-        """Every road user now: the scenario's (in scenario order; scripted ones where their script puts
-        them, SUMO-walked ones where SUMO walks them), then SUMO's background vehicles and pedestrians."""
+    def _along_lane(self, actor: Actor) -> float:
+        """The actor's heading, or the opposite one if it faces against the lane it stands on: the same box,
+        turned so that SUMO (which takes a vehicle's position as its front along its lane) sees where it
+        really begins and ends along the lane."""
+        sumo = self.libsumo
+        edge, pos, lane = sumo.simulation.convertRoad(actor.x, actor.y, False, "passenger")
+        length = sumo.lane.getLength(f"{edge}_{lane}")
+        a, b = max(pos - 0.25, 0.0), min(pos + 0.25, length)
+        (ax, ay), (bx, by) = (sumo.simulation.convert2D(edge, p, lane) for p in (a, b))
+        if (bx - ax) * math.cos(actor.yaw) + (by - ay) * math.sin(actor.yaw) < 0:
+            return math.remainder(actor.yaw + math.pi, 2 * math.pi)
+        return actor.yaw
+
+    def _scenario_actors(self) -> list[Actor]:
+        """The scenario's road users now, in scenario order: scripted ones where their script puts them,
+        SUMO-walked ones where SUMO walks them (or where they stand)."""
         route = self.road.route
         out = []
         for user in self.users:
             if self._native is not None and self._native.handles(user.spec.id):
-                actor = self.sumo_pose(user.spec.id)
-                self._native.observed(actor.actor_id, actor.x, actor.y, actor.yaw)
-                out.append(actor)
+                out.append(self._native.pose(user.spec.id))
             else:
                 out.append(user.actor(route))
+        return out
+
+    def actors(self) -> tuple[Actor, ...]:
+        """Every road user now: the scenario's (see :meth:`_scenario_actors`), then SUMO's background
+        vehicles and pedestrians."""
+        if self._native is not None:
+            for actor_id in sorted(self._native.walkers):
+                if self._native.update(actor_id):  # its walk ended: it stands where it stopped
+                    self._add_stand_in(actor_id, self._native.pose(actor_id))
+        out = self._scenario_actors()
         sumo = self.libsumo
         for vid in sumo.vehicle.getIDList():
             if vid != EGO_ID and not vid.startswith(ACTOR_PREFIX):
                 out.append(self._vehicle_actor(vid, vid, "car", *self._size(vid, vehicle=True)))
         for pid in sumo.person.getIDList():
-            if not pid.startswith(ACTOR_PREFIX):
+            if not pid.startswith(PERSON_PREFIX):
                 out.append(self._person_actor(pid, pid, "pedestrian", *self._size(pid, vehicle=False)))
         return tuple(out)
 
     def sumo_pose(self, actor_id: str) -> Actor:
-        """Where SUMO has the scenario road user ``actor_id`` (its copy of a scripted one: SUMO maps a placed
-        person onto the nearest walking path, a few centimetres from its scripted place at most)."""
+        """Where SUMO has the scenario road user ``actor_id``: its walking person, or its stand-in."""
         spec = self.scenario.actor(actor_id)
-        sumo_id = ACTOR_PREFIX + actor_id
-        if spec.kind in PERSON_KINDS:
-            return self._person_actor(sumo_id, spec.id, spec.kind, spec.length, spec.width, spec.height)
-        return self._vehicle_actor(sumo_id, spec.id, spec.kind, spec.length, spec.width, spec.height)
+        if self._native is not None and self._native.walking(actor_id):
+            return self._person_actor(PERSON_PREFIX + actor_id, spec.id, spec.kind, spec.length, spec.width,
+                                      spec.height)
+        return self._vehicle_actor(ACTOR_PREFIX + actor_id, spec.id, spec.kind, spec.length, spec.width,
+                                   spec.height)
 
     def _vehicle_actor(self, sumo_id: str, actor_id: str, kind: str, length: float, width: float,
                        height: float) -> Actor:
@@ -413,7 +435,10 @@ class SumoSimulator:
             if EGO_ID not in (c.collider, c.victim):
                 continue
             other = c.victim if c.collider == EGO_ID else c.collider
-            out.append(other[len(ACTOR_PREFIX):] if other.startswith(ACTOR_PREFIX) else other)
+            for prefix in (ACTOR_PREFIX, PERSON_PREFIX):
+                if other.startswith(prefix):
+                    other = other[len(prefix):]
+            out.append(other)
         return tuple(out)
 
     def _observe(self) -> Observation:
