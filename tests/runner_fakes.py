@@ -234,6 +234,12 @@ def square_but_three_dies(job: int) -> tuple[int, int]:
     return square(job)
 
 
+def square_but_odd_die(job: int) -> tuple[int, int]:
+    if job % 2:
+        os._exit(9)
+    return square(job)
+
+
 def component_identity(job) -> tuple[int, int]:
     """(worker pid, identity of the model this worker built for ``job``): shows models are reused."""
     from vladrivebench import sweep

@@ -49,6 +49,13 @@ def test_a_dying_worker_process_fails_only_its_job_and_is_replaced():
     assert failed[3].error == "worker process exited with status 7 while running this job"
 
 
+def test_every_job_comes_back_once_however_many_workers_die():
+    results = list(ProcessExecutor(workers=2).run(fakes.square_but_odd_die, range(16)))
+    ok, failed = results_by_job(results)
+    assert len(results) == 16
+    assert ok == {i: i * i for i in range(0, 16, 2)} and sorted(failed) == list(range(1, 16, 2))
+
+
 def test_no_jobs_no_processes():
     assert list(ProcessExecutor(workers=3).run(fakes.square, [])) == []
 

@@ -102,7 +102,7 @@ class ProcessExecutor:
                         outcome = slot.collect()
                         if outcome is not None:
                             yield outcome
-                        if not slot.process.is_alive():
+                        if slot.job is None and not slot.process.is_alive():  # its job was reported
                             slots[slots.index(slot)] = _Slot.start(context, worker)
         finally:
             for slot in slots:
