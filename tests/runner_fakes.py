@@ -240,6 +240,15 @@ def square_but_odd_die(job: int) -> tuple[int, int]:
     return square(job)
 
 
+def square_then_die_soon(job: int) -> tuple[int, int]:
+    """Job 2 returns its result, then its process dies shortly after (idle, or during its next job)."""
+    if job == 2:
+        import threading
+
+        threading.Timer(0.05, os._exit, args=(5,)).start()
+    return square(job)
+
+
 def component_identity(job) -> tuple[int, int]:
     """(worker pid, identity of the model this worker built for ``job``): shows models are reused."""
     from vladrivebench import sweep

@@ -56,6 +56,13 @@ def test_every_job_comes_back_once_however_many_workers_die():
     assert ok == {i: i * i for i in range(0, 16, 2)} and sorted(failed) == list(range(1, 16, 2))
 
 
+def test_a_worker_dying_between_jobs_loses_nothing():
+    results = list(ProcessExecutor(workers=1).run(fakes.square_then_die_soon, range(8)))
+    ok, failed = results_by_job(results)
+    assert len(results) == 8 and ok[2] == 4
+    assert set(ok) | set(failed) == set(range(8)) and set(failed) <= {3}  # job 3 may have been running
+
+
 def test_no_jobs_no_processes():
     assert list(ProcessExecutor(workers=3).run(fakes.square, [])) == []
 

@@ -92,8 +92,10 @@ class ProcessExecutor:
         slots: list[_Slot] = [_Slot.start(context, worker) for _ in range(min(self.workers, len(pending)))]
         try:
             while pending or any(slot.job is not None for slot in slots):
-                for slot in slots:
+                for index, slot in enumerate(slots):
                     if slot.job is None and pending:
+                        if not slot.process.is_alive():  # died while idle (e.g. the OOM killer)
+                            slots[index] = slot = _Slot.start(context, worker)
                         slot.assign(pending.popleft())
                 busy = [slot for slot in slots if slot.job is not None]
                 ready = wait([slot.conn for slot in busy] + [slot.process.sentinel for slot in busy])
@@ -127,7 +129,10 @@ class _Slot:
 
     def assign(self, job: Any) -> None:
         self.job = job
-        self.conn.send(job)
+        try:
+            self.conn.send(job)
+        except OSError:  # the process died just now: collect() reports the job as failed
+            pass
 
     def collect(self) -> Any:
         """The result of the job held, or a JobFailure if the process died; None if nothing is ready."""
