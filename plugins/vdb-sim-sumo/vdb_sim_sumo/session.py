@@ -86,6 +86,7 @@ class SumoSession:
 
     def __init__(self, owner: object):
         global _owner
+        self.libsumo = import_libsumo()
         with _lock:
             holder = _owner() if _owner is not None else None
             if holder is not None and holder is not owner:
@@ -96,7 +97,6 @@ class SumoSession:
                 )
             _owner = weakref.ref(owner)
         self._owner_ref = weakref.ref(owner)
-        self.libsumo = import_libsumo()
         self.closed = False
 
     def begin(self, args: list[str], what: str) -> None:

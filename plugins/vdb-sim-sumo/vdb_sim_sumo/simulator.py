@@ -139,10 +139,10 @@ class SumoSimulator:
         self.camera = Camera(width, height, hfov_deg, mount_height=camera_height, pitch_deg=pitch_deg)
         self._blank = np.zeros((height, width, 3), dtype=np.uint8)
         self._blank.flags.writeable = False
-        self.session = SumoSession(self)
+        self.netconvert = netconvert_binary()
+        self.session = SumoSession(self)  # last: nothing after it may fail, or the process stays claimed
         self._release = weakref.finalize(self, self.session.close)
         self.libsumo = self.session.libsumo
-        self.netconvert = netconvert_binary()
         self.sumo_version = sumo_version(self.libsumo)
         self._worlds: dict[str, World] = {}
         self.scenario: Scenario | None = None
