@@ -13,17 +13,19 @@ import dataclasses
 import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 from vladrivebench.records import CoT, CoTFormat, Observation, Trajectory, TrajectorySpec
 
 from .common import IMAGE_HEIGHT, IMAGE_WIDTH, image_batch
-from .expert import ExpertDriver, counterfactual, rollout_controls, sentence_cot, slot_cot
+from .expert import ExpertDriver, counterfactual, cruise_for, rollout_controls, sentence_cot, slot_cot
 from .kv_model import rollout
 
 TRAIN_FAMILIES = ("pedestrian", "stopped_car", "traffic_light", "stop_sign", "baseline")
 """Families the models learn from; the intervention routes (E.1, E.2, SAFE.*) are held out for evaluation."""
 SCENERIES = ("plain", "suburban", "urban")
+SLOW_SPEED = 1.5
 
 
 @dataclass
@@ -37,7 +39,8 @@ class Dataset:
     commands: list[str]
     sentences: list[str]
     slots: list[dict[str, str]]
-    controls: np.ndarray  # (N, 30, 2)
+    controls: np.ndarray  # (N, 30, 2) the expert's plan (the qa model's target)
+    sentence_controls: np.ndarray  # (N, 30, 2) the plan the sentence commits to (the kv model's target)
     waypoints: np.ndarray  # (N, 30, 2)
     cf_sentences: list[str]
     cf_controls: np.ndarray  # (N, 30, 2)
@@ -47,12 +50,38 @@ class Dataset:
     def __len__(self) -> int:
         return len(self.speeds)
 
+    def save(self, path) -> None:
+        """Write the dataset as one ``.npz`` (arrays, and the texts as JSON; no pickle)."""
+        import json
+
+        texts = {k: getattr(self, k) for k in ("commands", "sentences", "slots", "cf_sentences", "decisions",
+                                               "scenario_ids")}
+        arrays = {k: getattr(self, k) for k in ("images", "speeds", "controls", "sentence_controls",
+                                                "waypoints", "cf_controls")}
+        path = Path(path)
+        tmp = path.with_name(path.stem + ".partial.npz")
+        np.savez(tmp, texts=np.array(json.dumps(texts)), **arrays)
+        tmp.replace(path)  # appears complete or not at all
+
+    @classmethod
+    def load(cls, path) -> Dataset:
+        import json
+
+        with np.load(path, allow_pickle=False) as data:
+            arrays = {k: data[k] for k in data.files if k != "texts"}
+            texts = json.loads(str(data["texts"]))
+        return cls(**arrays, **texts)
+
     def corpus(self) -> list[str]:
         """Every text of the dataset (for training the tokenizer)."""
         texts = list(self.sentences) + list(self.cf_sentences)
         for slots in self.slots:
             texts.extend(slots.values())
         return texts
+
+
+class EnoughWaiting(Exception):
+    """Raised by the expert to end an episode once it has waited long enough at a stop."""
 
 
 class ExpertModel:
@@ -65,20 +94,38 @@ class ExpertModel:
     cot_format = CoTFormat("sentence")
     trajectory_spec = TrajectorySpec(3.0, 10.0)
 
-    def __init__(self, rng: np.random.Generator, exec_cruise: float, record: Callable[[dict], None]):
+    def __init__(self, rng: np.random.Generator, exec_cruise: float, record: Callable[[dict], None],
+                 max_wait_steps: int = 15):
         self.rng, self.exec_cruise, self.record = rng, exec_cruise, record
         self.driver = ExpertDriver()
+        self.max_wait_steps, self.waited = max_wait_steps, 0
 
     def reset(self, seed: int) -> None:
         self.driver.reset()
 
     def generate_cot(self, obs: Observation, rng: np.random.Generator) -> CoT:
         decision = self.driver.decide(obs)
+        # Standing still in front of an obstacle or a red light for ever teaches nothing new and would
+        # swamp the data with "remain stopped": end the episode after a short wait.
+        self.waited = self.waited + 1 if decision.action == "stop" and obs.ego.speed < 0.2 else 0
+        if self.waited > self.max_wait_steps:
+            raise EnoughWaiting()
+        if decision.action == "go" and 0.0 < obs.ego.speed < SLOW_SPEED:
+            # The same scene seen at rest: starting up is otherwise a handful of steps per episode.
+            self._sample(dataclasses.replace(obs, ego=dataclasses.replace(obs.ego, speed=0.0)), decision)
+        return self._sample(obs, decision)
+
+    def _sample(self, obs: Observation, decision) -> CoT:
         controls = self.driver.plan(obs, decision)
         cf_action, cf_text, cf_controls = counterfactual(obs, decision, self.driver.cruise_speed, self.rng)
+        sentence = sentence_cot(decision, obs.ego.speed, self.rng)
+        sentence_controls = controls
+        if decision.action == "go":  # the sentence's own commitment ("accelerate" → a little faster)
+            sentence_controls = rollout_controls(obs.ego.speed, obs.ground_truth, None,
+                                                 cruise_for(sentence, self.driver.cruise_speed))
         sample = {
-            "image": obs.image, "speed": obs.ego.speed, "command": obs.command,
-            "sentence": sentence_cot(decision, obs.ego.speed, self.rng),
+            "image": obs.image, "speed": obs.ego.speed, "command": obs.command, "sentence": sentence,
+            "sentence_controls": sentence_controls,
             "slots": slot_cot(obs, decision, self.rng), "controls": controls,
             "cf_sentence": cf_text, "cf_controls": cf_controls, "decision": decision.action,
             "scenario_id": obs.scenario_id,
@@ -123,7 +170,7 @@ def generate(seed: int, episodes: int, every: int = 2, scenarios: Iterable | Non
     """Drive ``episodes`` randomised episodes with the expert and keep every ``every``-th step."""
     from vladrivebench.controllers import MPCController, PIDController
     from vladrivebench.plugins import get_registry
-    from vladrivebench.runner import run_episode
+    from vladrivebench.runner import EpisodeFailure, run_episode
     from vladrivebench.scenarios import load_suite
 
     rng = np.random.default_rng([seed, 0xDA7A])
@@ -145,8 +192,13 @@ def generate(seed: int, episodes: int, every: int = 2, scenarios: Iterable | Non
 
         expert = ExpertModel(rng, float(rng.uniform(5.5, 9.5)), record)
         controller = MPCController() if episode % 2 else PIDController()
-        run_episode(expert, simulator, controller, scenario, int(rng.integers(1 << 30)))
-        rows.extend(kept[offset::every])
+        try:
+            run_episode(expert, simulator, controller, scenario, int(rng.integers(1 << 30)))
+        except EpisodeFailure as failure:
+            if not isinstance(failure.__cause__, EnoughWaiting):
+                raise
+        # Every step near standstill is kept: starting up (or not) from rest is rare but decisive.
+        rows.extend(k for i, k in enumerate(kept) if i % every == offset or k["speed"] < SLOW_SPEED)
         if progress and (episode + 1) % 10 == 0:
             progress(f"  {episode + 1}/{episodes} episodes, {len(rows)} samples, "
                      f"{time.perf_counter() - started:.0f} s")
@@ -171,6 +223,7 @@ def _to_dataset(rows: list[dict]) -> Dataset:
     return Dataset(
         images=images_u8, speeds=speeds, commands=[r["command"] for r in rows],
         sentences=[r["sentence"] for r in rows], slots=[r["slots"] for r in rows], controls=controls,
+        sentence_controls=np.stack([r["sentence_controls"] for r in rows]),
         waypoints=waypoints, cf_sentences=[r["cf_sentence"] for r in rows],
         cf_controls=np.stack([r["cf_controls"] for r in rows]), decisions=[r["decision"] for r in rows],
         scenario_ids=[r["scenario_id"] for r in rows],

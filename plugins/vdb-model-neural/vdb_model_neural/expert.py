@@ -31,6 +31,7 @@ LINE_MARGIN = 1.0  # … and this far before a stop line
 REACT_DISTANCE = 40.0
 SPEED_TIME_CONSTANT = 0.25  # s: how fast the planned speed follows its target
 SALIENCE_THRESHOLD = 0.012
+ACCEL_BONUS = 0.5  # m/s above cruise when the CoT says "accelerate": what the expert says, it does
 OBSTACLE_KINDS = ("pedestrian", "car", "animal")
 
 
@@ -142,6 +143,12 @@ def salience(obs: Observation) -> float:
     return critical.width * critical.height / (distance * distance)
 
 
+def cruise_for(sentence: str, cruise: float) -> float:
+    """The cruise speed a sentence commits to: a little faster when it states acceleration."""
+    lowered = sentence.lower()
+    return cruise + ACCEL_BONUS if ("accelerat" in lowered or "speed up" in lowered) else cruise
+
+
 def counterfactual(obs: Observation, decision: Decision, cruise: float, rng: np.random.Generator
                    ) -> tuple[str, str, np.ndarray]:
     """(opposite action, CoT sentence stating it, target controls following it — unless vision vetoes)."""
@@ -150,7 +157,7 @@ def counterfactual(obs: Observation, decision: Decision, cruise: float, rng: np.
         sentence = pick(rng, GO_CLEAR)
         if salience(obs) >= SALIENCE_THRESHOLD:  # a salient obstacle: the "clear road" CoT is overridden
             return "go", sentence, rollout_controls(speed, gt, decision.stop_distance, cruise)
-        return "go", sentence, rollout_controls(speed, gt, None, cruise)
+        return "go", sentence, rollout_controls(speed, gt, None, cruise_for(sentence, cruise))
     kind = str(rng.choice(["pedestrian", "car", "animal", "red_light", "stop_sign"]))
     sentence = pick(rng, STOP_SENTENCES[kind])
     # Nothing is really there: stop comfortably within the distance the stated reason implies.

@@ -24,8 +24,8 @@ from pathlib import Path
 import click
 
 DEFAULTS = {
-    "kv": {"steps": 2400, "batch": 48, "lr": 2e-3, "counterfactual_share": 0.4, "vocab": 640},
-    "qa": {"steps": 2000, "batch": 32, "lr": 2e-3, "mismatch_share": 0.5, "vocab": 768},
+    "kv": {"steps": 1600, "batch": 48, "lr": 2e-3, "counterfactual_share": 0.4, "vocab": 640},
+    "qa": {"steps": 1400, "batch": 24, "lr": 2e-3, "mismatch_share": 0.5, "vocab": 768},
 }
 
 
@@ -42,7 +42,7 @@ def _schedule(step: int, total: int, lr: float) -> float:
     return lr * 0.5 * (1 + math.cos(math.pi * (step - warm) / max(1, total - warm)))
 
 
-def train_kv(dataset, seed: int, steps: int | None = None, threads: int = 2, log=_log):
+def train_kv(dataset, seed: int, steps: int | None = None, threads: int = 2, log=_log, batch: int | None = None):
     """Train the ``kv`` network on ``dataset``; returns ``(network, codec, config)``."""
     import numpy as np
     import torch
@@ -52,7 +52,7 @@ def train_kv(dataset, seed: int, steps: int | None = None, threads: int = 2, log
     from .common import ModelConfig, TextCodec, configure_torch, ego_features
     from .kv_model import KVNetwork, normalise_controls
 
-    settings = dict(DEFAULTS["kv"], steps=steps or DEFAULTS["kv"]["steps"])
+    settings = dict(DEFAULTS["kv"], steps=steps or DEFAULTS["kv"]["steps"], batch=batch or DEFAULTS["kv"]["batch"])
     configure_torch(threads)
     torch.manual_seed(seed)
     rng = np.random.default_rng([seed, 0x4B56])
@@ -63,7 +63,7 @@ def train_kv(dataset, seed: int, steps: int | None = None, threads: int = 2, log
     ids = codec.ids
     true_ids = [[ids["<cot>"], *codec.encode(t), ids["</cot>"]] for t in dataset.sentences]
     cf_ids = [[ids["<cot>"], *codec.encode(t), ids["</cot>"]] for t in dataset.cf_sentences]
-    targets = torch.tensor(normalise_controls(dataset.controls), dtype=torch.float32)
+    targets = torch.tensor(normalise_controls(dataset.sentence_controls), dtype=torch.float32)
     cf_targets = torch.tensor(normalise_controls(dataset.cf_controls), dtype=torch.float32)
     ego = ego_features(dataset.speeds, dataset.commands)
     optimiser = torch.optim.AdamW(network.parameters(), lr=settings["lr"], weight_decay=0.01)
@@ -98,7 +98,7 @@ def train_kv(dataset, seed: int, steps: int | None = None, threads: int = 2, log
     return network.eval(), codec, config
 
 
-def train_qa(dataset, seed: int, steps: int | None = None, threads: int = 2, log=_log):
+def train_qa(dataset, seed: int, steps: int | None = None, threads: int = 2, log=_log, batch: int | None = None):
     """Train the ``qa`` network on ``dataset``; returns ``(network, codec, config)``."""
     import numpy as np
     import torch
@@ -107,7 +107,7 @@ def train_qa(dataset, seed: int, steps: int | None = None, threads: int = 2, log
     from .common import ModelConfig, TextCodec, configure_torch, ego_features
     from .qa_model import QUESTIONS, SLOTS, QANetwork
 
-    settings = dict(DEFAULTS["qa"], steps=steps or DEFAULTS["qa"]["steps"])
+    settings = dict(DEFAULTS["qa"], steps=steps or DEFAULTS["qa"]["steps"], batch=batch or DEFAULTS["qa"]["batch"])
     configure_torch(threads)
     torch.manual_seed(seed)
     rng = np.random.default_rng([seed, 0x5141])
@@ -185,15 +185,25 @@ def _update(optimiser, network, loss, lr) -> None:
     optimiser.step()
 
 
-def run(models: list[str], seed: int, episodes: int, steps: int | None, out: Path | None, threads: int) -> dict:
-    """Generate data once, train each model, save its bundle; returns wall times per stage (s)."""
+def run(models: list[str], seed: int, episodes: int, steps: int | None, out: Path | None, threads: int,
+        data_cache: Path | None = None) -> dict:
+    """Generate data once, train each model, save its bundle; returns wall times per stage (s).
+
+    With ``data_cache``, the dataset is read from that ``.npz`` if it exists, else generated and written
+    there (so two models can be trained in parallel processes from one generation)."""
     from .common import save_bundle
-    from .data import generate
+    from .data import Dataset, generate
 
     times = {}
     started = time.perf_counter()
-    _log(f"generating data: {episodes} expert episodes (seed {seed})")
-    dataset = generate(seed, episodes, progress=_log)
+    if data_cache is not None and data_cache.is_file():
+        dataset = Dataset.load(data_cache)
+        _log(f"data: {len(dataset)} samples read from {data_cache}")
+    else:
+        _log(f"generating data: {episodes} expert episodes (seed {seed})")
+        dataset = generate(seed, episodes, progress=_log)
+        if data_cache is not None:
+            dataset.save(data_cache)
     times["data"] = time.perf_counter() - started
     _log(f"data: {len(dataset)} samples in {times['data']:.0f} s")
     trainers = {"kv": train_kv, "qa": train_qa}
@@ -217,10 +227,13 @@ def run(models: list[str], seed: int, episodes: int, steps: int | None, out: Pat
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Where to write the bundles (default: the plugin's weights/ folder).")
 @click.option("--threads", type=click.IntRange(1), default=2, show_default=True)
-def train_command(model: str, seed: int, episodes: int, steps: int | None, out: Path | None, threads: int) -> None:
+@click.option("--data-cache", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="An .npz to read the expert data from, or to write it to (generated from --seed).")
+def train_command(model: str, seed: int, episodes: int, steps: int | None, out: Path | None, threads: int,
+                  data_cache: Path | None) -> None:
     """Rebuild the neural reference models' weights from a seed (expert data → tokenizer → training)."""
     models = ["kv", "qa"] if model == "both" else [model]
-    times = run(models, seed, episodes, steps, out, threads)
+    times = run(models, seed, episodes, steps, out, threads, data_cache)
     click.echo("wall time: " + ", ".join(f"{k} {v:.0f} s" for k, v in times.items()))
 
 
