@@ -35,6 +35,8 @@ def test_libsumo_missing_names_the_packages_to_install(monkeypatch, sumo_sim):
 
 def test_netconvert_missing_names_the_package_to_install(monkeypatch, tmp_path, sumo_sim):
     monkeypatch.setenv("SUMO_HOME", str(tmp_path))
+    monkeypatch.setenv("PATH", str(tmp_path))
+    monkeypatch.setattr(session, "eclipse_sumo_home", lambda: None)
     with pytest.raises(SumoUnavailableError) as caught:
         sumo_sim()
     message = one_line(caught.value)

@@ -9,7 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 from sumo_episodes import drive, suite_scenario
-from vdb_sim_sumo.network import sumo_environment, sumo_home
+from vdb_sim_sumo.network import sumo_environment
+from vdb_sim_sumo.session import netconvert_binary
 from vladrivebench.errors import ConfigError, ScenarioError
 from vladrivebench.scenarios import parse_scenario
 from vladrivebench.world.roads import GRASS, MARK_WHITE, ROAD, SIDEWALK
@@ -20,7 +21,7 @@ ROUTE = "A0A1,A1B1,B1C1"
 @pytest.fixture(scope="module")
 def grid_net(tmp_path_factory) -> str:
     path = tmp_path_factory.mktemp("usernet") / "grid.net.xml"
-    netgenerate = str(Path(sumo_home()) / "bin" / "netgenerate")
+    netgenerate = str(Path(netconvert_binary()).parent / "netgenerate")
     subprocess.run([netgenerate, "--grid", "--grid.number", "3", "--grid.length", "120", "--default.lanewidth",
                     "3.5", "--sidewalks.guess", "true", "--crossings.guess", "true", "--walkingareas", "true",
                     "--tls.set", "B1", "--no-turnarounds", "true", "--no-warnings", "true", "-o", str(path)],

@@ -443,21 +443,14 @@ def run_netconvert(netconvert: str, args: list[str], what: str) -> None:
 
 
 def sumo_environment() -> dict[str, str]:
-    """The environment for SUMO's tools: ``SUMO_HOME`` set to the installed SUMO when it is not set."""
+    """The environment for SUMO's tools: ``SUMO_HOME`` set to the ``eclipse-sumo`` installation when unset."""
     env = dict(os.environ)
     if not env.get("SUMO_HOME"):
-        home = sumo_home()
+        try:
+            import sumo
+        except ImportError:
+            return env
+        home = getattr(sumo, "SUMO_HOME", None)
         if home:
             env["SUMO_HOME"] = home
     return env
-
-
-def sumo_home() -> str | None:
-    """The SUMO installation of the ``eclipse-sumo`` package, or ``$SUMO_HOME``."""
-    if os.environ.get("SUMO_HOME"):
-        return os.environ["SUMO_HOME"]
-    try:
-        import sumo
-    except ImportError:
-        return None
-    return getattr(sumo, "SUMO_HOME", None)

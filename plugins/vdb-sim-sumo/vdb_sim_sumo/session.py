@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import shutil
 import sys
 import tempfile
 import threading
@@ -21,7 +22,7 @@ from typing import Any
 
 from vladrivebench.errors import VdbError
 
-from .network import sumo_environment, sumo_home
+from .network import sumo_environment
 
 INSTALL_HINT = "pip install eclipse-sumo libsumo"
 
@@ -54,18 +55,29 @@ def import_libsumo() -> Any:
 
 
 def netconvert_binary() -> str:
-    """The path of SUMO's ``netconvert`` (from ``eclipse-sumo`` or ``$SUMO_HOME``), or a one-line error."""
-    home = sumo_home()
-    candidates = []
-    if home:
-        candidates += [Path(home) / "bin" / name for name in ("netconvert", "netconvert.exe")]
+    """The path of SUMO's ``netconvert``: under ``$SUMO_HOME``, in the ``eclipse-sumo`` package, or on the
+    ``PATH`` (libsumo may point ``SUMO_HOME`` at its data-only package, which has no programs)."""
+    homes = [os.environ.get("SUMO_HOME"), eclipse_sumo_home()]
+    candidates = [Path(home) / "bin" / name for home in homes if home for name in ("netconvert", "netconvert.exe")]
     for path in candidates:
         if path.is_file() and os.access(path, os.X_OK):
             return str(path)
+    found = shutil.which("netconvert")
+    if found:
+        return found
     raise SumoUnavailableError(
-        f"simulator 'sumo' needs SUMO's netconvert, which was not found "
-        f"(SUMO_HOME={home or 'unset'}); install it with: {INSTALL_HINT}"
+        f"simulator 'sumo' needs SUMO's netconvert, which was not found (SUMO_HOME="
+        f"{os.environ.get('SUMO_HOME') or 'unset'}, nor on PATH); install it with: {INSTALL_HINT}"
     )
+
+
+def eclipse_sumo_home() -> str | None:
+    """The SUMO installation inside the ``eclipse-sumo`` wheel (the ``sumo`` package), if installed."""
+    try:
+        import sumo
+    except ImportError:
+        return None
+    return getattr(sumo, "SUMO_HOME", None)
 
 
 def sumo_version(libsumo: Any) -> str:
