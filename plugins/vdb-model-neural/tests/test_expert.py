@@ -7,7 +7,6 @@ import math
 import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
-
 from vdb_model_neural import expert
 from vdb_model_neural.kv_model import controls_to_trajectory, normalise_controls, rollout
 from vladrivebench.records import Actor, EgoState, GroundTruth, Observation

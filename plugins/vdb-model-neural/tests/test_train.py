@@ -5,7 +5,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
-
 from vdb_model_neural import expert, train
 from vdb_model_neural.common import bundle_paths, save_bundle
 from vdb_model_neural.data import Dataset
@@ -38,7 +37,8 @@ def test_training_is_reproducible_and_its_bundle_loads(tmp_path, name, trainer, 
     for (key, a), (_, b) in zip(first.state_dict().items(), second.state_dict().items(), strict=True):
         assert torch.equal(a, b), key
     other, _, _ = trainer(dataset, seed=4, steps=3, threads=1, log=lambda m: None, batch=4)
-    assert any(not torch.equal(a, b) for a, b in zip(first.state_dict().values(), other.state_dict().values()))
+    assert any(not torch.equal(a, b)
+               for a, b in zip(first.state_dict().values(), other.state_dict().values(), strict=True))
     paths = save_bundle(name, first, config, codec, tmp_path)
     assert paths == bundle_paths(name, tmp_path) and all(p.is_file() for p in paths.values())
     loaded = model(weights_dir=str(tmp_path))
