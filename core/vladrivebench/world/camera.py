@@ -115,13 +115,16 @@ class Camera:
         self._ground_fwd = fwd.ravel()[self._ground_index] + self.mount_forward
         self._ground_left = left.ravel()[self._ground_index]
         haze = np.clip(dist.ravel()[self._ground_index] / self.max_range, 0.0, 1.0) ** 1.2 * 0.65
-        self._ground_haze = haze[:, None]
+        # Each ground pixel's colour for every material, hazed by its distance: (pixels, materials, rgb).
+        hazed = MATERIAL_COLOURS[None] * (1 - haze[:, None, None]) + HAZE * haze[:, None, None]
+        self._ground_lut = _to_uint8(hazed)
+        self._ground_rows = np.arange(len(self._ground_index))
         # Sky: a vertical gradient by elevation, and haze at the horizon where the ground ran out of range.
         elevation = np.clip(-down_e / np.maximum(np.hypot(forward_e, down_e), 1e-9), 0.0, 1.0)
         blend = np.sqrt(elevation)[..., None]
         background = SKY_HORIZON * (1 - blend) + SKY_TOP * blend
         background[~hits & (down_e > 0)] = HAZE
-        self._background = background.reshape(-1, 3)
+        self._background = _to_uint8(background.reshape(-1, 3))
 
     # -- public -------------------------------------------------------------------------------------
     def render(self, road: RoadGeometry, ego: EgoState, actors: Iterable[Actor] = (),
@@ -131,8 +134,7 @@ class Camera:
         c, s = math.cos(ego.yaw), math.sin(ego.yaw)
         gx = ego.x + c * self._ground_fwd - s * self._ground_left
         gy = ego.y + s * self._ground_fwd + c * self._ground_left
-        colours = MATERIAL_COLOURS[road.classify(gx, gy)]
-        image[self._ground_index] = colours * (1 - self._ground_haze) + HAZE * self._ground_haze
+        image[self._ground_index] = self._ground_lut[self._ground_rows, road.classify(gx, gy)]
         image = image.reshape(self.height, self.width, 3)
         groups = [solids_for_actor(a) for a in actors]
         cam_x, cam_y, _ = self.camera_position(ego)
@@ -140,7 +142,7 @@ class Camera:
             if math.hypot(prop.x - cam_x, prop.y - cam_y) <= PROP_RANGE:
                 groups.append(solids_for_prop(prop, i))
         self._draw_groups(image, ego, groups)
-        return np.clip(image + 0.5, 0, 255).astype(np.uint8)
+        return image
 
     def camera_position(self, ego: EgoState) -> np.ndarray:
         """World position (x, y, z) of the camera."""
@@ -194,9 +196,12 @@ class Camera:
         face_centres = world[:, _FACE_CORNERS].mean(axis=2)
         facing = np.einsum("nfk,nfk->nf", normals, cam - face_centres) > 0.0
         shade = 0.55 + 0.45 * np.clip(normals @ SUN, 0.0, None)
+        base = np.array([sd.colour for sd in solids], dtype=float)
+        emissive = np.array([sd.emissive for sd in solids])
+        shade[emissive] = 1.0
+        face_colours = _to_uint8(base[:, None, :] * shade[..., None])  # (N, 6, rgb)
         for n in np.flatnonzero(keep):
             solid = solids[n]
-            colour = np.asarray(solid.colour, dtype=float)
             for f in range(1 if solid.front_only else 6):
                 if not facing[n, f]:
                     continue
@@ -209,8 +214,7 @@ class Camera:
                         continue
                     pu = self.cx + self.focal * polygon[:, 0] / polygon[:, 2]
                     pv = self.cy + self.focal * polygon[:, 1] / polygon[:, 2]
-                shaded = colour if solid.emissive else colour * shade[n, f]
-                _fill_convex(image, pu.tolist(), pv.tolist(), shaded, at_least_one=solid.emissive)
+                _fill_convex(image, pu.tolist(), pv.tolist(), face_colours[n, f], at_least_one=solid.emissive)
 
 
 def _clip_near(polygon: np.ndarray, near: float) -> np.ndarray:
@@ -244,7 +248,9 @@ def _fill_convex(image: np.ndarray, u: list[float], v: list[float], colour: np.n
     count = len(u)
     area = sum(u[i] * v[(i + 1) % count] - u[(i + 1) % count] * v[i] for i in range(count))
     painted = 0
-    if abs(area) > 1e-12:
+    if abs(area) > 1e-12 and (u1 - u0) * (v1 - v0) <= _SMALL_BOX:
+        painted = _fill_small(image, u, v, 1.0 if area > 0 else -1.0, (u0, u1, v0, v1), colour)
+    elif abs(area) > 1e-12:
         sign = 1.0 if area > 0 else -1.0
         rows = _PIXEL_CENTRES[v0:v1]
         lo = np.full(v1 - v0, -np.inf)
@@ -273,12 +279,35 @@ def _fill_convex(image: np.ndarray, u: list[float], v: list[float], colour: np.n
         # (a lit lamp outshines the rest of its pixel).
         coverage = 1.0 if at_least_one else coverage
         cu, cv = int(centroid_u), int(centroid_v)
-        image[cv, cu] = image[cv, cu] * (1.0 - coverage) + colour * coverage
+        blended = image[cv, cu] * (1.0 - coverage) + np.asarray(colour, dtype=float) * coverage
+        image[cv, cu] = _to_uint8(blended) if image.dtype == np.uint8 else blended
         painted = 1
     return painted
 
 
 _PIXEL_CENTRES = np.arange(8192) + 0.5
+_SMALL_BOX = 16
+
+
+def _fill_small(image: np.ndarray, u: list[float], v: list[float], sign: float, box: tuple[int, int, int, int],
+                colour: np.ndarray) -> int:
+    """The same inside test as :func:`_fill_convex`, pixel by pixel: far cheaper for a few pixels."""
+    u0, u1, v0, v1 = box
+    count = len(u)
+    edges = [(u[i], v[i], u[(i + 1) % count] - u[i], v[(i + 1) % count] - v[i]) for i in range(count)]
+    painted = 0
+    for row in range(v0, v1):
+        pv = row + 0.5
+        for col in range(u0, u1):
+            pu = col + 0.5
+            if all(sign * (du * (pv - av) - dv * (pu - au)) >= 0.0 for au, av, du, dv in edges):
+                image[row, col] = colour
+                painted += 1
+    return painted
+
+
+def _to_uint8(values: np.ndarray) -> np.ndarray:
+    return np.clip(np.asarray(values) + 0.5, 0, 255).astype(np.uint8)
 
 
 # -- appearance of each kind ---------------------------------------------------------------------------
