@@ -5,8 +5,9 @@
 Each scenario is driven for ``--steps`` steps (restarting when an episode ends) by a fixed lane-keeping
 control that reads only the ground truth, so the numbers are the simulator's own cost: physics, road users,
 ground truth and (with rendering) the camera image. Times are the best of ``--repeats`` runs; the machine
-may be shared, so read the ratios rather than the absolute numbers. Target: a step with rendering at
-160×80 in a few milliseconds.
+may be shared, so the CPU time of the process is reported (wall time suffers from other processes'
+load) and the ratios matter more than the absolute numbers. Target: a step with rendering at 160×80 in a
+few milliseconds.
 """
 
 from __future__ import annotations
@@ -31,7 +32,7 @@ def lane_keeping(obs, speed: float = 6.5):
 
 
 def seconds_per_step(scenario, render: bool, width: int, height: int, steps: int, repeats: int) -> float:
-    """Best-of-``repeats`` wall time of one simulator step (reset excluded)."""
+    """Best-of-``repeats`` CPU time of one simulator step (reset excluded)."""
     from vladrivebench.plugins import get_registry
 
     sim = get_registry().create("simulator", "kinematic", {"render": render, "width": width, "height": height})
@@ -43,9 +44,9 @@ def seconds_per_step(scenario, render: bool, width: int, height: int, steps: int
             if obs.ground_truth.terminal is not None:
                 obs = sim.reset(scenario, 0)
             control = lane_keeping(obs)
-            started = time.perf_counter()
+            started = time.process_time()
             obs = sim.step(control)
-            elapsed += time.perf_counter() - started
+            elapsed += time.process_time() - started
         best = min(best, elapsed / steps)
     sim.close()
     return best
@@ -61,7 +62,8 @@ def main() -> None:
 
     from vladrivebench.scenarios import resolve_scenarios
 
-    print(f"kinematic simulator, image {args.width}x{args.height}, {args.steps} steps x best of {args.repeats}")
+    print(f"kinematic simulator, image {args.width}x{args.height}, {args.steps} steps x best of {args.repeats} "
+          "(CPU time per step)")
     print(f"{'scenario':<12} {'render ms':>10} {'steps/s':>9} {'no-render ms':>13} {'steps/s':>9} {'ratio':>6}")
     for scenario in resolve_scenarios(list(SCENARIOS)):
         with_image = seconds_per_step(scenario, True, args.width, args.height, args.steps, args.repeats)
