@@ -329,6 +329,17 @@ DISTANCE_BIN_M = 5.0
 """Width of the distance bins of the plots against distance to the target."""
 
 
+PAPER_ROWS = ("Pedestrian (in-lane)", "Pedestrian (crossing)", "Stopped car (blocking)", "Stopped car (non-blocking)",
+              "Traffic light (red)", "Traffic light (green)", "Stop sign", "Baseline")
+"""The paper's row order; other scenario groups follow in alphabetical order."""
+
+
+def ordered_groups(groups: Iterable[str]) -> list[str]:
+    """Scenario groups in the paper's row order, unknown ones after, alphabetically."""
+    unique = set(groups)
+    return [g for g in PAPER_ROWS if g in unique] + sorted(unique - set(PAPER_ROWS))
+
+
 class _ZoneRate:
     """A rate per (scenario group, model, zone) over labelled steps; subclasses say which steps and what."""
 
@@ -371,7 +382,7 @@ class _ZoneRate:
                 point[1] += 1
         if not cells:
             return []
-        models, groups = list(dict.fromkeys(models)), list(dict.fromkeys(groups))
+        models, groups = list(dict.fromkeys(models)), ordered_groups(groups)
         rows = tuple(
             Row((group,), tuple(Cell.rate(*cells.get((group, m, z), (0, 0)), interval=True)
                                 for m in models for z in self.zones))
@@ -544,7 +555,7 @@ class AlignmentByDistance:
                     _distance_points(views, aligned, plot_points.setdefault((group, model), {}))
         if not whole:
             return []
-        models, groups = list(dict.fromkeys(models)), list(dict.fromkeys(groups))
+        models, groups = list(dict.fromkeys(models)), ordered_groups(groups)
         tables = []
         for strict in (False, True):
             kind = "Strict" if strict else "Relaxed"
