@@ -8,16 +8,19 @@ The world of a scenario is a SUMO network built with ``netconvert`` from the sha
    controller's ``next_state``) and is placed in SUMO with ``vehicle.moveToXY``; SUMO's other vehicles see
    it as a road user (car following, junction right of way) but SUMO does not drive it;
 2. scenario road users whose trigger the ego has reached start moving. With ``pedestrians="scripted"``
-   (default) they follow the scenario's script (:mod:`vdb_sim_sumo.scripted`) and are placed in SUMO with
-   ``moveToXY``, as SUMO persons (pedestrians, animals) and vehicles (cars); with ``pedestrians="sumo"``
-   pedestrians and animals are walked by SUMO's striping model on sidewalks and crossings;
+   (default) they follow the scenario's script (:mod:`vdb_sim_sumo.scripted`), exactly as in the
+   kinematic simulator, and a stand-in vehicle of their size is placed in SUMO with ``moveToXY`` so that
+   SUMO's traffic sees them and SUMO's collision check covers them; with ``pedestrians="sumo"`` moving
+   pedestrians and animals are SUMO persons walked by SUMO's striping model on the sidewalks and over the
+   crossings netconvert built (:mod:`vdb_sim_sumo.persons`);
 3. SUMO advances one step: background vehicles and pedestrians (``background_*_per_hour``), the frozen
    traffic light, the stop junction;
 4. collisions: the ego's box against every actor's box (the shared separating-axis test) united with the
    collisions SUMO reports for the ego (its sublane model checks lateral overlap too), one entry per actor;
-5. the shared :class:`~vladrivebench.world.truth.TruthTracker` computes the ground truth from SUMO's
-   poses — distance to the critical feature, blocking, light state, red-light and stop-sign violations
-   (SUMO enforces no rule on a placed ego), terminal state — and the shared camera renders the image.
+5. the shared :class:`~vladrivebench.world.truth.TruthTracker` computes the ground truth from the road
+   users' poses (scripted ones from their script, SUMO's own from SUMO) — distance to the critical
+   feature, blocking, light state, red-light and stop-sign violations (SUMO enforces no rule on a placed
+   ego), terminal state — and the shared camera renders the image.
 
 Determinism: SUMO's random-number generator is seeded from the episode's seed, pedestrians' start
 positions are jittered from the same stream as the kinematic simulator's (so both simulators pose the same
