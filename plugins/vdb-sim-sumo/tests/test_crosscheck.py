@@ -13,6 +13,7 @@ which is the closed loop on both as long as they agree, which is what is asserte
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 from sumo_episodes import lockstep, suite, truth_differences
 from vdb_model_scripted.plugin import make_scripted
@@ -49,3 +50,19 @@ def test_sumo_and_kinematic_agree_on_the_ground_truth(scenario, sumo_sim):
     distances = [k.ground_truth.distance_to_critical for k, _ in pairs]
     if scenario.critical is not None:  # the horizon reaches the critical event: passed, or stopped near it
         assert min(distances) < 12.0, f"{scenario.id}: still {min(distances):.1f} m from the critical feature"
+
+
+@pytest.mark.parametrize("scenario_id", ["P.2", "TL.1-red"])
+def test_the_camera_sees_the_same_image_in_both_simulators(scenario_id, sumo_sim):
+    from sumo_episodes import suite_scenario
+
+    kinematic, sumo = make_kinematic(render=True), sumo_sim(render=True)
+    images = []
+
+    def check(obs_k, obs_s):
+        if obs_k.step % 10 == 0:
+            images.append(obs_k.step)
+            assert np.array_equal(obs_k.image, obs_s.image), f"{scenario_id} step {obs_k.step}"
+
+    lockstep(suite_scenario(scenario_id), 3, kinematic, sumo, make_scripted(), PIDController(), 150, check)
+    assert len(images) == 15
