@@ -55,8 +55,8 @@ def check_walkable(scenario: Scenario, world: Any) -> None:
             if spec.id not in world.crossing_nodes:
                 raise ScenarioError(
                     f"scenario {where}: simulator 'sumo' with pedestrians='sumo' cannot walk actor {spec.id!r} "
-                    f"(feature 'motion:cross' at s = {spec.s:g}: no SUMO crossing there, too close to the end of "
-                    "the network); use --sim-opt pedestrians=scripted"
+                    f"(feature 'motion:cross' at s = {spec.s:g}: the network has no crossing built there); use "
+                    "--sim-opt pedestrians=scripted"
                 )
         for verb, offset in ends:
             x, y = (float(v) for v in road.route.to_world(spec.s, offset))
