@@ -81,9 +81,14 @@ def _heading(section: Section) -> str:
 # -- cell text ---------------------------------------------------------------------------------------------
 def cell_text(cell: Cell, count_format: str = "{display} ({count})") -> str:
     """A cell with its count, unless the display already is the count or is text (its count is in the JSON)."""
-    if cell.display == str(cell.count) or (cell.value is None and not cell.missing):
+    if _shows_its_count(cell) or (cell.value is None and not cell.missing):
         return cell.display
     return count_format.format(display=cell.display, count=cell.count)
+
+
+def _shows_its_count(cell: Cell) -> bool:
+    """A count cell (no value) whose text is its count; a 100 % rate over 100 bins is not one."""
+    return cell.value is None and cell.display == str(cell.count)
 
 
 # -- plain text (vdb metrics) ---------------------------------------------------------------------------------
@@ -195,7 +200,7 @@ def _latex_table(table: Table) -> list[str]:
 
 
 def _latex_cell(cell: Cell) -> str:
-    if cell.display == str(cell.count):
+    if _shows_its_count(cell):
         return _tex(cell.display)
     display = "---" if cell.missing else _tex(cell.display)
     return f"{display}\\,{{\\tiny({cell.count})}}"
@@ -255,7 +260,7 @@ def _html_table(table: Table) -> list[str]:
         for cell in row.cells:
             title = f" title='{cell.low * 100:.1f}–{cell.high * 100:.1f} % (95 % CI)'" if cell.low is not None else ""
             shown = f"<span class='missing'>{esc(cell.display)}</span>" if cell.missing else esc(cell.display)
-            count = "" if cell.display == str(cell.count) else f"<span class='n'>{cell.count}</span>"
+            count = "" if _shows_its_count(cell) else f"<span class='n'>{cell.count}</span>"
             cells += f"<td{title}>{shown}{count}</td>"
         out.append(f"<tr>{cells}</tr>")
     out.append("</tbody></table>")
