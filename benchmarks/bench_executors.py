@@ -8,6 +8,8 @@ The sweep is the scripted model on the kinematic simulator (PID), scenarios P.1,
 output directory; the benchmark checks that all of them wrote byte-identical logs.
 
 Figures printed:
+- the ceiling: how much faster perfectly parallel CPU work runs on the same number of processes at that
+  moment (≈ 2× on 2 free cores; a busy shared machine gives less, and no executor can beat it);
 - sweep wall time and speed-up over sequential (target ≥ 1.6× with 2 workers on 2 free cores). For Ray,
   the sweep time includes creating the actors but not starting Ray itself, printed separately;
 - per-episode overhead: the wall time per job of dispatching a job that does nothing and returning its
@@ -30,6 +32,32 @@ SCENARIOS = ("P.1", "C.1", "TL.1-red", "E.1")
 def noop(job):
     """A job that does nothing: what is left of its wall time is the executor's own cost."""
     return job
+
+
+def burn(iterations: int) -> float:
+    """Pure-Python CPU work; returns its own wall time."""
+    started = time.perf_counter()
+    total = 0
+    for i in range(iterations):
+        total += i
+    return time.perf_counter() - started
+
+
+def available_parallelism(workers: int, iterations: int = 4_000_000) -> float:
+    """Speed-up of perfectly parallel CPU work on ``workers`` processes right now (the ceiling for any
+    executor: on a shared machine it can be far below ``workers``)."""
+    import multiprocessing
+
+    started = time.perf_counter()
+    for _ in range(workers):
+        burn(iterations)
+    sequential = time.perf_counter() - started
+    with multiprocessing.get_context("spawn").Pool(workers) as pool:
+        pool.map(burn, [10] * workers)  # start the processes first
+        started = time.perf_counter()
+        pool.map(burn, [iterations] * workers)
+        parallel = time.perf_counter() - started
+    return sequential / parallel
 
 
 def sweep_config(seeds: int, render: bool):
@@ -85,6 +113,8 @@ def main() -> None:
     root = Path(tempfile.mkdtemp(prefix="vdb-bench-executors-"))
     print(f"{episodes}-episode sweep (scripted, kinematic{'' if args.render else ' without camera'}, pid), "
           f"{args.workers} workers, {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f}")
+    ceiling = available_parallelism(args.workers)
+    print(f"ceiling: perfectly parallel CPU work runs {ceiling:.2f}× faster on {args.workers} processes right now")
     try:
         executors = {"sequential": SequentialExecutor, "process": lambda: ProcessExecutor(workers=args.workers)}
         startups = {}
@@ -107,7 +137,8 @@ def main() -> None:
         print(f"{'executor':<12}{'sweep (s)':>10}{'per episode':>13}{'speed-up':>10}")
         for name, seconds in times.items():
             print(f"{name:<12}{seconds:>10.2f}{seconds / episodes:>12.3f}s{base / seconds:>9.2f}×")
-        print(f"logs byte-identical across executors: {identical}; load average now {os.getloadavg()[0]:.1f}")
+        print(f"logs byte-identical across executors: {identical}; load average now {os.getloadavg()[0]:.1f}; "
+              f"ceiling now {available_parallelism(args.workers):.2f}×")
         print(f"\nper-episode overhead (no-op jobs, {args.overhead_jobs} each):")
         executors = {"sequential": SequentialExecutor(), "process": ProcessExecutor(workers=args.workers)}
         if not args.no_ray:
