@@ -172,7 +172,7 @@ def test_other_configuration_in_out_is_refused_untouched(tmp_path, capsys):
     code, _, err = vdb(capsys, *BASE, "--scenarios", "road", "--seeds", 2, "--out", tmp_path, "--quiet",
                        "--model-opt", "cruise=3")
     assert code == 2 and "holds a run with a different configuration (config.model.options.cruise: 3 now, " \
-                         "null before)" in one_line_error(err)
+                         "absent before)" in one_line_error(err)
     assert snapshot(tmp_path) == before
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import importlib
+import json
 import sys
 from pathlib import Path
 
@@ -200,3 +201,30 @@ def test_controller_output_is_checked():
 
     with pytest.raises(EpisodeFailure, match="controller 'controller' control at step 0 .* non-finite"):
         run_episode(EchoModel(), LineSimulator(), Broken(), FakeScenario("road"), 0)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.tuples(st.floats(0, 40), st.floats(-5, 200), st.sampled_from([(), ("car0",), ("a", "b")]),
+                          st.sampled_from([(), ("red_light:tl0",)])), min_size=1, max_size=30),
+       st.floats(0, 150), st.sampled_from(["timeout", "collision", "route_complete", "step_limit"]))
+def test_episode_result_rules(steps, route_length, terminal):
+    from vladrivebench.records import EgoState, GroundTruth, Observation
+    from vladrivebench.runner import _Tally
+
+    tally = _Tally()
+    for i, (speed, progress, collisions, violations) in enumerate(steps):
+        gt = GroundTruth(step=i, time=i * 0.1, route_progress=progress, route_length=route_length,
+                         collisions=collisions, violations=violations)
+        tally.add(Observation(i, i * 0.1, np.zeros((1, 1, 3), np.uint8), EgoState(0, 0, 0, speed), "straight", gt))
+    result = tally.result(terminal)
+    assert result.steps == len(steps)
+    assert result.mean_speed == pytest.approx(np.mean([s[0] for s in steps]))
+    assert result.collisions == sum(len(s[2]) for s in steps) == len(result.collision_events)
+    assert result.violations == sum(len(s[3]) for s in steps)
+    assert 0.0 <= result.route_completion <= 1.0
+    if terminal == "route_complete":
+        assert result.route_completion == 1.0
+    elif route_length > 0:
+        assert result.route_completion == pytest.approx(min(1.0, max(0.0, steps[-1][1] / route_length)))
+    assert result.duration == pytest.approx((len(steps) - 1) * 0.1)
+    assert json.loads(json.dumps(result.to_json())) == result.to_json()

@@ -6,10 +6,13 @@ from __future__ import annotations
 import importlib
 import json
 import os
+import re
 import sys
 from pathlib import Path
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from vladrivebench import sweep
 from vladrivebench.errors import ConfigError, UnknownNameError, VdbError
 from vladrivebench.executors import ProcessExecutor, SequentialExecutor
@@ -79,7 +82,7 @@ def test_different_configuration_is_refused_and_nothing_is_touched(tmp_path):
     with pytest.raises(ConfigError) as info:
         sweep_into(tmp_path, config(cruise=4.0))
     message = str(info.value)
-    assert "config.model.options.cruise: 4.0 now, null before" in message and "\n" not in message
+    assert "config.model.options.cruise: 4.0 now, absent before" in message and "\n" not in message
     with pytest.raises(ConfigError, match="config.seeds"):
         sweep_into(tmp_path, config(seeds=3))
     assert snapshot(tmp_path) == before
@@ -212,3 +215,53 @@ def test_partials_being_written_are_kept_and_abandoned_ones_removed(tmp_path):
     with EpisodeWriter(tmp_path / "episodes" / "a.mcap", {"episode_id": "a"}) as writer:
         sweep._remove_stale_partials(tmp_path / "episodes")
         assert writer.partial_path.exists() and not abandoned.exists()
+
+
+@settings(max_examples=80, deadline=None)
+@given(st.text(min_size=1, max_size=20), st.text(min_size=1, max_size=20), st.integers(0, 10**6))
+def test_episode_ids_are_safe_file_names(model, scenario_id, seed):
+    eid = sweep.episode_id(model, scenario_id, seed)
+    assert re.fullmatch(r"[A-Za-z0-9._-]+__[A-Za-z0-9._-]+__s\d+", eid) and "/" not in eid
+    assert eid.endswith(f"__s{seed}")
+
+
+keys = st.text("abc_", max_size=3)
+json_values = st.recursive(st.none() | st.booleans() | st.integers(-5, 5) | st.text(max_size=3),
+                           lambda inner: st.lists(inner, max_size=3) | st.dictionaries(keys, inner, max_size=3),
+                           max_leaves=8)
+
+
+@settings(max_examples=120, deadline=None)
+@given(json_values, json_values)
+def test_first_difference_is_none_only_for_equal_values(before, now):
+    found = sweep.first_difference(before, now, "config")
+    assert (found is None) == (before == now)
+    if found is not None:
+        path = found.split(":")[0].split(".")[1:]
+        a, b = before, now
+        for key in path:  # following the reported path leads to values that differ (or to a missing key)
+            a = a.get(key, "<absent>") if isinstance(a, dict) else "<absent>"
+            b = b.get(key, "<absent>") if isinstance(b, dict) else "<absent>"
+        assert a != b
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.lists(st.sampled_from(["ok", "failed", "missing"]), min_size=1, max_size=12),
+       st.lists(st.floats(0, 1), min_size=12, max_size=12))
+def test_per_scenario_counts_add_up(statuses, completions):
+    jobs, results, failures = [], {}, {}
+    for i, status in enumerate(statuses):
+        scenario = fakes.SCENARIOS[i % 3]
+        job = sweep.EpisodeJob(f"e{i}", "", scenario, i, config().model, config().simulator, config().controller, {}, {})
+        jobs.append(job)
+        if status == "ok":
+            results[job.episode_id] = {"collisions": i % 2, "violations": 0, "route_completion": completions[i],
+                                       "mean_speed": 1.0}
+        elif status == "failed":
+            failures[job.episode_id] = {"error": "x"}
+    rows = sweep.SweepSummary(Path("."), jobs, results, failures).per_scenario()
+    assert sum(r["episodes"] for r in rows) == statuses.count("ok")
+    assert sum(r["failed"] for r in rows) == statuses.count("failed")
+    assert sum(r["collisions"] for r in rows) == sum(i % 2 for i, s in enumerate(statuses) if s == "ok")
+    for row in rows:
+        assert row["route_completion"] is None or 0 <= row["route_completion"] <= 1

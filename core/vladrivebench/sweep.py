@@ -464,20 +464,25 @@ def prepare_out(out: Path, manifest: Mapping[str, Any]) -> None:
     write_json_atomic(path, manifest)
 
 
+_ABSENT = object()
+
+
 def first_difference(before: Any, now: Any, where: str) -> str | None:
     """``"config.model.options.alpha: 1 now, 0 before"`` for the first place two JSON values differ."""
     if isinstance(before, dict) and isinstance(now, dict):
         for key in sorted(set(before) | set(now)):
-            found = first_difference(before.get(key), now.get(key), f"{where}.{key}")
+            found = first_difference(before.get(key, _ABSENT), now.get(key, _ABSENT), f"{where}.{key}")
             if found:
                 return found
         return None
-    if before != now:
+    if before is _ABSENT or now is _ABSENT or before != now:
         return f"{where}: {_short(now)} now, {_short(before)} before"
     return None
 
 
 def _short(value: Any) -> str:
+    if value is _ABSENT:
+        return "absent"
     text = json.dumps(value)
     return text if len(text) <= 60 else text[:57] + "..."
 
