@@ -71,7 +71,9 @@ def test_project_inverts_to_world(s, offset):
     route = geometry.route
     point = route.to_world(s, offset)
     ps, po = route.project(point[None, :], s - 5.0, s + 5.0)
-    assert ps[0] == pytest.approx(s, abs=0.02)
+    # The route is a polyline with vertices ROUTE_STEP apart: beside a vertex on a tight turn, the nearest
+    # polyline point is the vertex itself, so s can be off by up to |offset| * ROUTE_STEP / (2 * radius).
+    assert ps[0] == pytest.approx(s, abs=0.05)
     assert po[0] == pytest.approx(offset, abs=0.02)
 
 
