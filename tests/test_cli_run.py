@@ -80,7 +80,9 @@ def test_failed_episodes_exit_2_with_one_line(tmp_path, capsys):
     code, out, err = vdb(capsys, *BASE, "--model-opt", "fail_at=[0, 2]", "--scenarios", "road,car", "--seeds", 2,
                          "--out", tmp_path, "--quiet")
     assert code == 2
-    assert one_line_error(err) == f"vdb: error: 2 of 4 episodes failed (details: {tmp_path / 'failures.json'})"
+    line = one_line_error(err)
+    assert line.startswith("vdb: error: 2 of 4 episodes failed; first, echo__car__s0: model 'echo'")
+    assert line.endswith(f"(details: {tmp_path / 'failures.json'})")
     assert "2 complete" in out and "2 failed" in out
     failures = json.loads((tmp_path / "failures.json").read_text())["failures"]
     assert [f["episode_id"] for f in failures] == ["echo__car__s0", "echo__road__s0"]

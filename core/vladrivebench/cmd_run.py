@@ -189,8 +189,10 @@ def report(summary: Any, *, as_json: bool) -> None:
     """Print the summary (table or JSON) and fail with one line if any episode failed."""
     click.echo(json.dumps(summary.to_json(), indent=2) if as_json else format_summary(summary))
     if summary.failures:
-        raise VdbError(f"{len(summary.failures)} of {summary.total} episodes failed "
-                       f"(details: {summary.out / 'failures.json'})")
+        first_id = sorted(summary.failures)[0]
+        reason = summary.failures[first_id].get("error", "")
+        raise VdbError(f"{len(summary.failures)} of {summary.total} episodes failed; first, {first_id}: "
+                       f"{reason} (details: {summary.out / 'failures.json'})")
 
 
 def execute(settings: RunSettings, *, quiet: bool):
