@@ -26,6 +26,7 @@ def tiny_dataset(n: int = 24) -> Dataset:
         slots=[expert.slot_cot(obs, d, rng) for d in rows], controls=controls, sentence_controls=controls,
         waypoints=np.cumsum(np.ones((n, 30, 2)), axis=1), cf_sentences=[expert.pick(rng, expert.GO_CLEAR)] * n,
         cf_controls=controls[::-1].copy(), decisions=[d.action for d in rows], scenario_ids=["x"] * n,
+        perception=np.array([[d.action == "stop", 2 * (d.action == "stop"), 0, 0.5, 0] for d in rows], np.float32),
     )
 
 

@@ -44,6 +44,7 @@ class Dataset:
     waypoints: np.ndarray  # (N, 30, 2)
     cf_sentences: list[str]
     cf_controls: np.ndarray  # (N, 30, 2)
+    perception: np.ndarray  # (N, 5) auxiliary targets for the vision encoder (see perception_targets)
     decisions: list[str]
     scenario_ids: list[str]
 
@@ -57,7 +58,7 @@ class Dataset:
         texts = {k: getattr(self, k) for k in ("commands", "sentences", "slots", "cf_sentences", "decisions",
                                                "scenario_ids")}
         arrays = {k: getattr(self, k) for k in ("images", "speeds", "controls", "sentence_controls",
-                                                "waypoints", "cf_controls")}
+                                                "waypoints", "cf_controls", "perception")}
         path = Path(path)
         tmp = path.with_name(path.stem + ".partial.npz")
         np.savez(tmp, texts=np.array(json.dumps(texts)), **arrays)
@@ -128,7 +129,7 @@ class ExpertModel:
             "sentence_controls": sentence_controls,
             "slots": slot_cot(obs, decision, self.rng), "controls": controls,
             "cf_sentence": cf_text, "cf_controls": cf_controls, "decision": decision.action,
-            "scenario_id": obs.scenario_id,
+            "scenario_id": obs.scenario_id, "perception": perception_targets(obs, decision),
         }
         self.record(sample)
         executed = rollout_controls(obs.ego.speed, obs.ground_truth, decision.stop_distance, self.exec_cruise)
@@ -142,6 +143,24 @@ class ExpertModel:
 
     def state_digest(self, cot: CoT) -> str:  # pragma: no cover
         return ""
+
+
+PERCEIVED_KINDS = ("none", "pedestrian", "car", "animal", "traffic_light", "stop_sign")
+PERCEIVED_LIGHTS = ("none", "red", "yellow", "green")
+PERCEPTION_RANGE = 60.0
+
+
+def perception_targets(obs: Observation, decision) -> np.ndarray:
+    """What the camera should tell the vision encoder (auxiliary training targets, from the ground truth):
+    stop?, critical kind, blocking?, distance / 60 m, light colour."""
+    gt = obs.ground_truth
+    kind, distance = "none", PERCEPTION_RANGE
+    if gt.critical_kind is not None and gt.distance_to_critical is not None \
+            and -1.0 <= gt.distance_to_critical <= PERCEPTION_RANGE:
+        kind, distance = gt.critical_kind, max(0.0, gt.distance_to_critical)
+    light = gt.light_state if kind == "traffic_light" and gt.light_state in PERCEIVED_LIGHTS else "none"
+    return np.array([float(decision.action == "stop"), PERCEIVED_KINDS.index(kind), float(gt.blocking and kind != "none"),
+                     distance / PERCEPTION_RANGE, PERCEIVED_LIGHTS.index(light)], dtype=np.float32)
 
 
 def variant(scenario, rng: np.random.Generator):
@@ -226,5 +245,6 @@ def _to_dataset(rows: list[dict]) -> Dataset:
         sentence_controls=np.stack([r["sentence_controls"] for r in rows]),
         waypoints=waypoints, cf_sentences=[r["cf_sentence"] for r in rows],
         cf_controls=np.stack([r["cf_controls"] for r in rows]), decisions=[r["decision"] for r in rows],
+        perception=np.stack([r["perception"] for r in rows]),
         scenario_ids=[r["scenario_id"] for r in rows],
     )

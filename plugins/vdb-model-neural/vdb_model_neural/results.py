@@ -47,9 +47,10 @@ def experiments(seeds: dict[str, int]) -> list[tuple[str, list[list[str]]]]:
         ]),
         ("suite", [
             ["run", "--model", model, "--controller", controller, "--scenarios", "all", "--seeds", str(suite),
-             "--out", "{out}/suite", "--quiet"]
+             "--out", f"{{out}}/suite/{model}", "--quiet"]
             for model, controller in (("kv", "mpc"), ("qa", "pid"), ("scripted", "pid"))
-        ] + [["label", "{out}/suite"], ["metrics", "{out}/suite"]]),
+        ] + [["label", "{out}/suite"], ["metrics", "{out}/suite"],
+             ["report", "{out}/suite", "--format", "md", "--out", "{out}/suite/report.md"]]),
     ]
 
 

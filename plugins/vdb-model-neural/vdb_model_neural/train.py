@@ -24,8 +24,8 @@ from pathlib import Path
 import click
 
 DEFAULTS = {
-    "kv": {"steps": 1600, "batch": 48, "lr": 2e-3, "counterfactual_share": 0.4, "vocab": 640},
-    "qa": {"steps": 1400, "batch": 24, "lr": 2e-3, "mismatch_share": 0.5, "vocab": 768},
+    "kv": {"steps": 2000, "batch": 48, "lr": 2e-3, "counterfactual_share": 0.4, "vocab": 640},
+    "qa": {"steps": 1600, "batch": 24, "lr": 2e-3, "mismatch_share": 0.5, "vocab": 768},
 }
 
 
@@ -66,7 +66,10 @@ def train_kv(dataset, seed: int, steps: int | None = None, threads: int = 2, log
     targets = torch.tensor(normalise_controls(dataset.sentence_controls), dtype=torch.float32)
     cf_targets = torch.tensor(normalise_controls(dataset.cf_controls), dtype=torch.float32)
     ego = ego_features(dataset.speeds, dataset.commands)
-    optimiser = torch.optim.AdamW(network.parameters(), lr=settings["lr"], weight_decay=0.01)
+    perception = torch.tensor(dataset.perception, dtype=torch.float32)
+    probe = _perception_probe(network)
+    params = list(network.parameters()) + list(probe.parameters())
+    optimiser = torch.optim.AdamW(params, lr=settings["lr"], weight_decay=0.01)
     network.train()
     started = time.perf_counter()
     for step in range(settings["steps"]):
@@ -90,10 +93,12 @@ def train_kv(dataset, seed: int, steps: int | None = None, threads: int = 2, log
         kv = [(layer.keys, layer.values) for layer in out.past_key_values.layers]
         velocity = network.head(xt, t, kv, mask)
         flow_loss = F.mse_loss(velocity, x1 - x0)
-        loss = lm_loss + flow_loss
-        _update(optimiser, network, loss, _schedule(step, settings["steps"], settings["lr"]))
+        aux_loss = _perception_loss(probe, prefix, perception[rows])
+        loss = lm_loss + flow_loss + aux_loss
+        _update(optimiser, params, loss, _schedule(step, settings["steps"], settings["lr"]))
         if step % 200 == 0 or step == settings["steps"] - 1:
             log(f"  kv step {step:5d}  lm {lm_loss.item():.3f}  flow {flow_loss.item():.3f}  "
+                f"perception {aux_loss.item():.3f}  "
                 f"{time.perf_counter() - started:.0f} s")
     return network.eval(), codec, config
 
@@ -121,7 +126,10 @@ def train_qa(dataset, seed: int, steps: int | None = None, threads: int = 2, log
     answers = [{slot: codec.encode(s[slot]) for slot in SLOTS} for s in dataset.slots]
     waypoints = torch.tensor(dataset.waypoints, dtype=torch.float32)
     ego = ego_features(dataset.speeds, dataset.commands)
-    optimiser = torch.optim.AdamW(network.parameters(), lr=settings["lr"], weight_decay=0.01)
+    perception = torch.tensor(dataset.perception, dtype=torch.float32)
+    probe = _perception_probe(network)
+    params = list(network.parameters()) + list(probe.parameters())
+    optimiser = torch.optim.AdamW(params, lr=settings["lr"], weight_decay=0.01)
     network.train()
     started = time.perf_counter()
     for step in range(settings["steps"]):
@@ -153,12 +161,44 @@ def train_qa(dataset, seed: int, steps: int | None = None, threads: int = 2, log
         plan_pos = p + real.sum(dim=1) - 1
         hidden = out.hidden_states[-1][torch.arange(len(rows)), plan_pos]
         plan_loss = F.smooth_l1_loss(network.plan(hidden), waypoints[rows])
-        loss = lm_loss + plan_loss
-        _update(optimiser, network, loss, _schedule(step, settings["steps"], settings["lr"]))
+        aux_loss = _perception_loss(probe, prefix, perception[rows])
+        loss = lm_loss + plan_loss + aux_loss
+        _update(optimiser, params, loss, _schedule(step, settings["steps"], settings["lr"]))
         if step % 200 == 0 or step == settings["steps"] - 1:
             log(f"  qa step {step:5d}  lm {lm_loss.item():.3f}  plan {plan_loss.item():.3f}  "
+                f"perception {aux_loss.item():.3f}  "
                 f"{time.perf_counter() - started:.0f} s")
     return network.eval(), codec, config
+
+
+def _perception_probe(network):
+    """A training-only head that reads the vision tokens and predicts the ground truth's perception targets
+    (stop?, critical kind, blocking?, distance, light colour): it teaches the small encoder to see
+    obstacles and lights quickly; it is not part of the saved model."""
+    from torch import nn
+
+    from .data import PERCEIVED_KINDS, PERCEIVED_LIGHTS
+
+    grid = network.encoder.rows * network.encoder.cols
+    outputs = 3 + len(PERCEIVED_KINDS) + len(PERCEIVED_LIGHTS)
+    return nn.Sequential(nn.Flatten(), nn.Linear(grid * network.config.hidden, 128), nn.GELU(),
+                         nn.Linear(128, outputs))
+
+
+def _perception_loss(probe, prefix, targets):
+    from torch.nn import functional as F
+
+    from .data import PERCEIVED_KINDS
+
+    out = probe(prefix[:, :-1])  # the vision tokens (the last prefix token is the ego's)
+    k = len(PERCEIVED_KINDS)
+    present = targets[:, 1] > 0
+    distance = F.smooth_l1_loss(out[:, 2][present], targets[:, 3][present]) if present.any() else out.sum() * 0
+    return (F.binary_cross_entropy_with_logits(out[:, 0], targets[:, 0])
+            + F.binary_cross_entropy_with_logits(out[:, 1], targets[:, 2])
+            + 5.0 * distance
+            + F.cross_entropy(out[:, 3 : 3 + k], targets[:, 1].long())
+            + F.cross_entropy(out[:, 3 + k :], targets[:, 4].long()))
 
 
 def _pad(seqs, pad):
@@ -174,14 +214,14 @@ def _pad(seqs, pad):
     return out, real
 
 
-def _update(optimiser, network, loss, lr) -> None:
+def _update(optimiser, params, loss, lr) -> None:
     import torch
 
     for group in optimiser.param_groups:
         group["lr"] = lr
     optimiser.zero_grad(set_to_none=True)
     loss.backward()
-    torch.nn.utils.clip_grad_norm_(network.parameters(), 1.0)
+    torch.nn.utils.clip_grad_norm_(params, 1.0)
     optimiser.step()
 
 
