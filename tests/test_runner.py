@@ -80,16 +80,25 @@ def test_every_draw_comes_from_the_pinned_streams():
 
     class Recorder(EchoModel):
         def generate_cot(self, obs, rng):
-            seen.append(("cot", obs.step, rng.bit_generator.state["state"]["state"]))
+            seen.append(("cot", obs.step, obs.scenario_id, rng.bit_generator.state["state"]["state"]))
             return super().generate_cot(obs, rng)
 
         def decode_action(self, obs, cot, rng):
-            seen.append(("action", obs.step, rng.bit_generator.state["state"]["state"]))
+            seen.append(("action", obs.step, obs.scenario_id, rng.bit_generator.state["state"]["state"]))
             return super().decode_action(obs, cot, rng)
 
     drive(model=Recorder(), seed=7)
-    for purpose, step, state in seen:
-        assert state == step_rng(7, step, purpose).bit_generator.state["state"]["state"]
+    assert seen
+    for purpose, step, scope, state in seen:
+        assert state == step_rng(7, step, purpose, scope).bit_generator.state["state"]["state"]
+
+
+@given(st.integers(0, 2**31 - 1), st.integers(0, 10_000))
+def test_scenarios_with_the_same_seed_draw_independently(seed, step):
+    """Otherwise a sweep over scenarios would reuse one seed's draws in every scenario."""
+    a = step_rng(seed, step, "cot", "P.1").random(4)
+    b = step_rng(seed, step, "cot", "C.1").random(4)
+    assert not (a == b).all()
 
 
 @settings(max_examples=10, deadline=None)
@@ -109,8 +118,8 @@ def test_different_seeds_differ():
 def test_policy_drives_and_its_extras_are_logged(tmp_path):
     def injected(model, obs, seed):
         own_cot, own_traj, _ = own_cot_policy(model, obs, seed)
-        cot = model.splice_cot(obs, "stop now", step_rng(seed, obs.step, "condition"))
-        traj = model.decode_action(obs, cot, step_rng(seed, obs.step, "action"))
+        cot = model.splice_cot(obs, "stop now", step_rng(seed, obs.step, "condition", obs.scenario_id))
+        traj = model.decode_action(obs, cot, step_rng(seed, obs.step, "action", obs.scenario_id))
         return cot, traj, {"shadow_v1": own_traj.forward_displacement(1.0), "own_text": own_cot.text}
 
     path = tmp_path / "ep.mcap"
@@ -146,7 +155,8 @@ def test_model_step_reproduces_a_closed_loop_step_from_its_log(tmp_path):
     model = EchoModel()
     model.reset(4)
     for record in read_episode(path).steps[::5]:
-        cot, traj, extras = model_step(model, observation_from_step(record), 4, model_name="echo")
+        obs = observation_from_step(record, scenario_id="road")  # the draws are scoped by scenario
+        cot, traj, extras = model_step(model, obs, 4, model_name="echo")
         assert cot.text == record.cot["text"]
         assert traj.to_json() == record.trajectory and extras == {}
 

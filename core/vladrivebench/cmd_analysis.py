@@ -128,6 +128,12 @@ def _label_texts(labeler: Any, name: str, entries: list, out: Path | None, dry_r
                + (f" ({unlabelled} unlabelled, reasons in the file)" if unlabelled else ""))
 
 
+def label_directory(labeler: Any, name: str, directory: Path, *, dry_run: bool = False, chunk: int = 500,
+                    quiet: bool = False) -> None:
+    """Label every observational step of the logs in ``directory`` not yet in its label store."""
+    _label_directory(labeler, name, directory, dry_run, chunk, quiet)
+
+
 def _label_directory(labeler: Any, name: str, directory: Path, dry_run: bool, chunk: int, quiet: bool) -> None:
     from .analysis import label_items, observational, read_directory
     from .labels import LabelStore, label_key

@@ -29,6 +29,8 @@ CONFIG_KEYS: dict[str, str] = {
 
 DEMO_SCENARIOS = ("P.1", "C.1", "TL.1-red", "E.1")
 DEMO_SEEDS = 2
+# Known error rates, so the demo shows the benchmark recovering them from the CoTs alone.
+DEMO_MODEL_OPTIONS = {"miss_rate": 0.2, "hallucination_rate": 0.1, "contradiction_rate": 0.05, "alpha": 0.5}
 
 
 @dataclass
@@ -257,9 +259,21 @@ def run_command(ctx: click.Context, config_file: str | None, quiet: bool, as_jso
 @click.option("--json", "as_json", is_flag=True, help="Print a machine-readable summary on stdout.")
 def demo_command(out: str | None, quiet: bool, as_json: bool) -> None:
     """A small end-to-end evaluation: the scripted model on P.1, C.1, TL.1-red and E.1 × 2 seeds."""
+    from .demo import label_and_summarise
+    from .plugins import get_registry
+
     out = out or tempfile.mkdtemp(prefix="vdb-demo-")
     summary = run_demo(Path(out), quiet=quiet)
     report(summary, as_json=as_json)
+    if as_json:
+        return
+    lines, report_path = label_and_summarise(Path(out), get_registry(), quiet=quiet)
+    configured = ", ".join(f"{k}={v}" for k, v in DEMO_MODEL_OPTIONS.items())
+    click.echo(f"\nCoT quality and alignment (lexicon labels; 95 % Wilson intervals) of the scripted model "
+               f"configured with {configured}:")
+    for line in lines:
+        click.echo(f"  {line}")
+    click.echo(f"\nReport: {report_path}\nMore: vdb metrics {out}   |   vdb report {out} --format md --out report.md")
 
 
 def run_demo(out: Path, *, quiet: bool = False, workers: int = 1):
@@ -268,6 +282,7 @@ def run_demo(out: Path, *, quiet: bool = False, workers: int = 1):
     The scripted model perceives through the ground truth, so the camera is not rendered (3× faster).
     """
     settings = RunSettings(model="scripted", sim="kinematic", controller="pid", sim_options={"render": False},
+                           model_options=dict(DEMO_MODEL_OPTIONS),
                            scenarios=list(DEMO_SCENARIOS), seeds=DEMO_SEEDS, out=str(out), workers=workers)
     return execute(settings, quiet=quiet)
 

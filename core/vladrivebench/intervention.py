@@ -217,7 +217,7 @@ class Splicer:
     def splice(self, obs: Observation, name: str, injection: Injection, seed: int) -> CoT:
         """``model.splice_cot`` with the pinned condition stream; a refusal becomes a one-line error."""
         try:
-            return self.model.splice_cot(obs, injection, step_rng(seed, obs.step, "condition"))
+            return self.model.splice_cot(obs, injection, step_rng(seed, obs.step, "condition", obs.scenario_id))
         except VdbError as exc:
             raise ConditionError(f"condition {name!r}: model {self.model_name!r} cannot take its text: "
                                  f"{_one_line(exc)}") from None
@@ -226,7 +226,7 @@ class Splicer:
                                  f"({type(exc).__name__}: {_one_line(exc)})") from None
 
     def decode(self, obs: Observation, cot: CoT, seed: int) -> Trajectory:
-        return self.model.decode_action(obs, cot, step_rng(seed, obs.step, "action"))
+        return self.model.decode_action(obs, cot, step_rng(seed, obs.step, "action", obs.scenario_id))
 
 
 def _one_line(exc: BaseException) -> str:
@@ -247,8 +247,8 @@ def gate_record(model: Any, own: CoT, own_trajectory: Trajectory, spliced: CoT,
 
 def own_step(model: Any, obs: Observation, seed: int) -> tuple[CoT, Trajectory]:
     """The model's own CoT and its trajectory, with the pinned streams a plain episode uses."""
-    own = model.generate_cot(obs, step_rng(seed, obs.step, "cot"))
-    return own, model.decode_action(obs, own, step_rng(seed, obs.step, "action"))
+    own = model.generate_cot(obs, step_rng(seed, obs.step, "cot", obs.scenario_id))
+    return own, model.decode_action(obs, own, step_rng(seed, obs.step, "action", obs.scenario_id))
 
 
 # -- step policies ------------------------------------------------------------------------------------
@@ -291,7 +291,7 @@ class OpenLoopPolicy:
         sp = self.splicer
         injections = {name: sp.injection(resolver, name) for name in self.conditions}
         if self.batch and injections and all(isinstance(t, str) for t in injections.values()):
-            decoded = sp.model.decode_batch(obs, list(injections.values()), step_rng(seed, obs.step, "action"))
+            decoded = sp.model.decode_batch(obs, list(injections.values()), step_rng(seed, obs.step, "action", obs.scenario_id))
             out = dict(zip(injections, decoded, strict=True))
         else:
             out = {name: sp.decode(obs, sp.splice(obs, name, text, seed), seed) for name, text in injections.items()}

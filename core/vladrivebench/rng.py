@@ -18,11 +18,17 @@ def stream_id(purpose: str) -> int:
     return zlib.crc32(purpose.encode("utf-8"))
 
 
-def step_rng(seed: int, step: int, purpose: str) -> np.random.Generator:
-    """The generator for one purpose at one step of the episode with ``seed``."""
+def step_rng(seed: int, step: int, purpose: str, scope: str = "") -> np.random.Generator:
+    """The generator for one purpose at one step of the episode with ``seed``.
+
+    ``scope`` names the episode's scenario (``Observation.scenario_id``): without it, every scenario run
+    with seed 0 would draw the same numbers at the same step, and a sweep over scenarios would count one
+    set of draws many times over.
+    """
     if seed < 0 or step < 0:
         raise ValueError(f"seed and step must be non-negative, got seed={seed}, step={step}")
-    return np.random.default_rng([seed, step, stream_id(purpose)])
+    entropy = [seed, step, stream_id(purpose)] + ([stream_id(scope)] if scope else [])
+    return np.random.default_rng(entropy)
 
 
 def episode_rng(seed: int, purpose: str) -> np.random.Generator:

@@ -37,8 +37,8 @@ def own_cot_policy(model: VLAModel, obs: Observation, seed: int) -> StepOutput:
     A model may define ``cot_extras(cot) -> dict | None``: JSON-able internals of its own CoT (e.g. the
     scripted model's record of the errors it made on purpose), logged in ``/extras``.
     """
-    cot = model.generate_cot(obs, step_rng(seed, obs.step, "cot"))
-    trajectory = model.decode_action(obs, cot, step_rng(seed, obs.step, "action"))
+    cot = model.generate_cot(obs, step_rng(seed, obs.step, "cot", obs.scenario_id))
+    trajectory = model.decode_action(obs, cot, step_rng(seed, obs.step, "action", obs.scenario_id))
     describe = getattr(model, "cot_extras", None)
     extras = describe(cot) if callable(describe) else None
     return cot, trajectory, dict(extras or {})
