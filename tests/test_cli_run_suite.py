@@ -53,6 +53,16 @@ def test_demo_runs_end_to_end_and_logs_everything(tmp_path, capsys):
     assert e1.steps[-1].ground_truth["terminal"] == "route_complete"
 
 
+def test_demo_labels_summarises_and_reports(tmp_path, capsys):
+    code, out, _ = vdb(capsys, "demo", "--out", tmp_path, "--quiet")
+    assert code == 0
+    assert (tmp_path / "labels" / "lexicon.jsonl").exists() and (tmp_path / "report.html").exists()
+    (line,) = [ln for ln in out.splitlines() if ln.strip().startswith("scripted: target mentioned")]
+    # the demo's model writes contradictions with a known rate of 5 %: the labels must recover it
+    low, high = (float(x) for x in line.split("contradiction ")[1].split("[")[1].split("]")[0].split("–"))
+    assert low <= 5.0 <= high
+
+
 def test_same_command_twice_gives_identical_bytes(tmp_path, capsys):
     args = ["run", *SHORT, "--scenarios", "TL.1-red", "--seeds", 1]
     assert vdb(capsys, *args, "--out", tmp_path / "a")[0] == 0
