@@ -87,8 +87,8 @@ def cell_text(cell: Cell, count_format: str = "{display} ({count})") -> str:
 
 
 def _shows_its_count(cell: Cell) -> bool:
-    """A count cell (no value) whose text is its count; a 100 % rate over 100 bins is not one."""
-    return cell.value is None and cell.display == str(cell.count)
+    """A count cell (its text and value are its count); a 100 % rate over 100 bins is not one."""
+    return cell.display == str(cell.count) and (cell.value is None or cell.value == cell.count)
 
 
 # -- plain text (vdb metrics) ---------------------------------------------------------------------------------
