@@ -26,8 +26,7 @@ from typing import Any
 from vladrivebench.errors import ScenarioError
 from vladrivebench.records import Actor
 from vladrivebench.scenarios import Scenario
-
-from .scripted import ScriptedUser
+from vladrivebench.world.motion import ScriptedUser
 
 PERSON_KINDS = ("pedestrian", "animal")
 PERSON_PREFIX = "vdb.person."

@@ -8,7 +8,7 @@ The world of a scenario is a SUMO network built with ``netconvert`` from the sha
    controller's ``next_state``) and is placed in SUMO with ``vehicle.moveToXY``; SUMO's other vehicles see
    it as a road user (car following, junction right of way) but SUMO does not drive it;
 2. scenario road users whose trigger the ego has reached start moving. With ``pedestrians="scripted"``
-   (default) they follow the scenario's script (:mod:`vdb_sim_sumo.scripted`), exactly as in the
+   (default) they follow the scenario's script (:mod:`vladrivebench.world.motion`), exactly as in the
    kinematic simulator, and a stand-in vehicle of their size is placed in SUMO with ``moveToXY`` so that
    SUMO's traffic sees them and SUMO's collision check covers them; with ``pedestrians="sumo"`` moving
    pedestrians and animals are SUMO persons walked by SUMO's striping model on the sidewalks and over the
@@ -36,36 +36,35 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-from vladrivebench.errors import ConfigError, ScenarioError
-from vladrivebench.records import Actor, Control, EgoState, Observation
+from vladrivebench.errors import ConfigError
+from vladrivebench.records import Actor, Control, Observation
 from vladrivebench.rng import episode_rng
 from vladrivebench.scenarios import Scenario
 from vladrivebench.world import bicycle
 from vladrivebench.world.boxes import colliding
 from vladrivebench.world.camera import Camera
+from vladrivebench.world.motion import (
+    WORLD_FEATURES,
+    blank_image,
+    check_numbers,
+    check_supported,
+    check_view_options,
+    ego_at_start,
+    option_error,
+    scripted_users,
+)
 from vladrivebench.world.roads import RoadGeometry, build_road
 from vladrivebench.world.truth import TruthTracker
 
 from . import network
 from .lights import ego_colour, frozen_state
 from .persons import PERSON_PREFIX
-from .scripted import ScriptedUser
 from .session import SumoSession, netconvert_binary, sumo_version
 from .traffic import TrafficDensity, routes_xml, trips_between
 
-SUPPORTED_FEATURES = frozenset(
-    {f"layout:{name}" for name in ("straight", "t_junction", "four_way")}
-    | {f"scenery:{name}" for name in ("plain", "suburban", "urban")}
-    | {f"lanes:{n}" for n in (1, 2, 3, 4)}
-    | {f"actor:{kind}" for kind in ("pedestrian", "car", "animal")}
-    | {f"motion:{kind}" for kind in ("static", "along", "cross")}
-    | {f"traffic_light:{colour}" for colour in ("red", "yellow", "green")}
-    | {"stop_sign"}
-)
-"""Every scenario feature (see :meth:`Scenario.features`) this simulator represents."""
+SUPPORTED_FEATURES = WORLD_FEATURES
+"""Every scenario feature (see :meth:`Scenario.features`) this simulator represents: the shared world's."""
 PEDESTRIAN_MODELS = ("scripted", "sumo")
-JITTERED_KINDS = ("pedestrian", "animal")
 PERSON_KINDS = ("pedestrian", "animal")
 EGO_ID = "vdb.ego"
 ACTOR_PREFIX = "vdb.actor."
@@ -140,8 +139,7 @@ class SumoSimulator:
             self.user_net = UserNetwork.from_options(net_file, route, float(depart_pos))
         self.cache_dir = Path(cache_dir) if cache_dir else network.default_cache_dir()
         self.camera = Camera(width, height, hfov_deg, mount_height=camera_height, pitch_deg=pitch_deg)
-        self._blank = np.zeros((height, width, 3), dtype=np.uint8)
-        self._blank.flags.writeable = False
+        self._blank = blank_image(width, height)
         self.netconvert = netconvert_binary()
         self.session = SumoSession(self)  # last: nothing after it may fail, or the process stays claimed
         self._release = weakref.finalize(self, self.session.close)
@@ -155,20 +153,14 @@ class SumoSimulator:
     # -- protocol -----------------------------------------------------------------------------------
     def reset(self, scenario: Scenario, seed: int) -> Observation:
         """Start an episode of ``scenario``; ``seed`` seeds SUMO and jitters pedestrians' start."""
-        check_supported(scenario)
+        check_supported(scenario, "sumo", SUPPORTED_FEATURES)
         world = self._world(scenario)
         if self.pedestrians == "sumo":
             from .persons import check_walkable
 
             check_walkable(scenario, world)
         self.scenario, self.world, self.road = scenario, world, world.road
-        rng = episode_rng(seed, "simulator")
-        self.users = []
-        for spec in scenario.actors:
-            shift = 0.0
-            if spec.kind in JITTERED_KINDS and self.position_jitter > 0:
-                shift = float(rng.uniform(-self.position_jitter, self.position_jitter))
-            self.users.append(ScriptedUser.at_start(spec, shift))
+        self.users = scripted_users(scenario, seed, self.position_jitter)
         sumo_seed = int(episode_rng(seed, "sumo").integers(0, 2**31 - 1))
         args = ["-n", str(world.net), "--seed", str(sumo_seed), *SUMO_OPTIONS]
         args += PEDESTRIAN_OPTIONS[self.pedestrians]
@@ -180,10 +172,7 @@ class SumoSimulator:
         self._ego_links, self._light_state = self._freeze_light(scenario, world)
         for _ in range(self.warmup_steps):
             sumo.simulationStep()
-        route = self.road.route
-        x, y = (float(v) for v in route.position(0.0))
-        self.ego = EgoState(x, y, float(route.heading(0.0)), scenario.ego.speed, 0.0,
-                            bicycle.EGO_LENGTH, bicycle.EGO_WIDTH)
+        self.ego = ego_at_start(self.road.route, scenario.ego.speed)
         self._clear_start()
         self._add_ego()
         self._native = None
@@ -479,35 +468,15 @@ def _cached_text(cache_dir: Path, text: str, suffix: str) -> Path:
     return target
 
 
-def check_supported(scenario: Scenario) -> None:
-    """Raise a one-line :class:`ScenarioError` if the scenario needs a feature SUMO cannot represent."""
-    missing = sorted(scenario.features() - SUPPORTED_FEATURES)
-    if missing:
-        where = scenario.source or scenario.id
-        raise ScenarioError(
-            f"scenario {where}: simulator 'sumo' cannot represent {missing[0]!r} "
-            f"(it supports: {', '.join(sorted(SUPPORTED_FEATURES))})"
-        )
-
-
 def _check_options(values: dict[str, Any]) -> None:
     """One-line :class:`ConfigError` for the first bad option."""
     def fail(name: str, expected: str) -> ConfigError:
-        return ConfigError(f"simulator 'sumo': option {name} must be {expected}, got {values[name]!r}")
+        return option_error("sumo", name, expected, values[name])
 
-    for name, low, high in (("width", 8, 4096), ("height", 8, 4096)):
-        value = values[name]
-        if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
-            raise fail(name, f"a whole number between {low} and {high}")
-    if not isinstance(values["render"], bool):
-        raise fail("render", "true or false")
-    for name, low, high in (("hfov_deg", 10.0, 170.0), ("camera_height", 0.2, 10.0), ("pitch_deg", -30.0, 60.0),
-                            ("position_jitter", 0.0, 2.0), ("background_vehicles_per_hour", 0.0, 20000.0),
-                            ("background_pedestrians_per_hour", 0.0, 20000.0),
-                            ("background_warmup_s", 0.0, 3600.0), ("depart_pos", 0.0, 1e6)):
-        value = values[name]
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not low <= value <= high:
-            raise fail(name, f"a number between {low:g} and {high:g}")
+    check_view_options("sumo", values)
+    check_numbers("sumo", values, (("background_vehicles_per_hour", 0.0, 20000.0),
+                                   ("background_pedestrians_per_hour", 0.0, 20000.0),
+                                   ("background_warmup_s", 0.0, 3600.0), ("depart_pos", 0.0, 1e6)))
     if values["pedestrians"] not in PEDESTRIAN_MODELS:
         raise fail("pedestrians", " or ".join(repr(m) for m in PEDESTRIAN_MODELS))
     for name in ("net_file", "route", "cache_dir"):
