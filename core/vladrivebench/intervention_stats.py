@@ -398,19 +398,62 @@ def plan_seeds(condition: str, seed_means: Sequence[float], *, effect_m: float |
         seeds, achieved = 2, 1.0
     else:
         seeds = _smallest_n(analysis, size, level, power, max_seeds)
-        achieved = float(analysis.power(effect_size=size, nobs=seeds, alpha=level)) if seeds else None
+        achieved = t_test_power(size, seeds, level) if seeds else None
     return SeedPlan(condition, size, effect, sd, int(x.size), power, level, max(1, family_size), seeds,
                     achieved)
 
 
+def t_test_power(effect_size: float, nobs: int, alpha: float) -> float:
+    """Power of the two-sided one-sample t-test with ``nobs`` observations at standardised ``effect_size``.
+
+    statsmodels' ``TTestPower`` first; where it returns NaN (its non-central t fails for large effects at
+    few degrees of freedom) the same probability by numerical integration over the sample sd:
+    P(|Z + λ| > t_c·S), λ = d·√n, Z ~ N(0, 1), S = √(V/df), V ~ χ²(df) — equal to statsmodels to ~1e-13
+    wherever statsmodels is finite.
+    """
+    from statsmodels.stats.power import TTestPower
+
+    with warnings.catch_warnings():  # a NaN is handled below; its warnings would only confuse
+        warnings.simplefilter("ignore")
+        value = float(TTestPower().power(effect_size=effect_size, nobs=nobs, alpha=alpha))
+    if math.isfinite(value):
+        return value
+    from scipy import integrate, stats
+
+    df = nobs - 1
+    shift = abs(effect_size) * math.sqrt(nobs)
+    critical = float(stats.t.isf(alpha / 2.0, df))
+
+    def integrand(s: float) -> float:
+        density = 2.0 * df * s * stats.chi2.pdf(df * s * s, df)  # of S = √(V/df)
+        return (stats.norm.sf(critical * s - shift) + stats.norm.cdf(-critical * s - shift)) * density
+
+    top = math.sqrt(float(stats.chi2.isf(1e-16, df)) / df)
+    # split where the integrand changes fast: around λ/t_c (the rejection edge) and near 0
+    marks = (shift / critical, (shift + 1) / critical, (shift + 8) / critical, 1 / critical, 8 / critical)
+    edges = sorted({0.0, top, *(x for x in marks if x < top)})
+    total = sum(integrate.quad(integrand, lo, hi, limit=200, epsabs=1e-14, epsrel=1e-12)[0]
+                for lo, hi in zip(edges, edges[1:], strict=False))
+    return min(1.0, max(0.0, total))
+
+
 def _smallest_n(analysis: Any, size: float, alpha: float, power: float, max_seeds: int) -> int | None:
-    """The smallest whole number of seeds reaching ``power`` (solve_power gives a real n; check around it)."""
+    """The smallest whole number of seeds (≥ 2) reaching ``power``: solve_power's real-valued n is only a hint
+    (it can fail or land off by a few for very large effects), so walk down and up from it."""
+    def enough(n: int) -> bool:
+        return t_test_power(size, n, alpha) >= power
+
     try:
-        approx = float(analysis.solve_power(effect_size=size, nobs=None, alpha=alpha, power=power))
+        with warnings.catch_warnings():  # non-convergence only means no hint: the walk below decides
+            warnings.simplefilter("ignore")
+            approx = float(analysis.solve_power(effect_size=size, nobs=None, alpha=alpha, power=power))
     except (ValueError, RuntimeError, ArithmeticError):
         approx = math.nan
-    start = max(2, math.floor(approx) - 1) if math.isfinite(approx) else 2
-    for n in range(start, max_seeds + 1):
-        if analysis.power(effect_size=size, nobs=n, alpha=alpha) >= power:
-            return n
-    return None
+    n = min(max_seeds, max(2, math.ceil(approx))) if math.isfinite(approx) else 2
+    while n > 2 and enough(n - 1):
+        n -= 1
+    while not enough(n):
+        if n >= max_seeds:
+            return None
+        n += 1
+    return n
