@@ -7,7 +7,7 @@ import sys
 
 import pytest
 
-HEAVY = ("torch", "transformers", "libsumo", "ray")
+HEAVY = ("torch", "transformers", "libsumo", "ray", "numpy", "scipy", "statsmodels", "matplotlib", "mcap")
 
 PROBE = """
 import sys
@@ -32,3 +32,12 @@ def test_bad_command_is_one_line_exit_2():
                             capture_output=True, text=True, timeout=120)
     assert result.returncode == 2
     assert result.stderr.strip().count("\n") == 0 and "No such command" in result.stderr
+
+
+def test_intervene_default_seeds_is_the_protocols():
+    from vladrivebench.cmd_intervene import COMMANDS
+    from vladrivebench.intervention import DEFAULT_SEEDS
+
+    (intervene,) = [c for c in COMMANDS if c.name == "intervene"]
+    (seeds,) = [p for p in intervene.params if p.name == "seeds"]
+    assert seeds.default == DEFAULT_SEEDS

@@ -120,3 +120,24 @@ def test_isolated_registry_restores_the_previous_one():
         assert get_registry().names("model") == ["kv"]
     with isolated_registry():
         assert get_registry().names("model") == []
+
+
+def test_factory_given_as_import_path_is_imported_on_first_use():
+    def register_models(register):
+        register("lazy", "fractions:Fraction", description="imported when built")
+
+    registry = Registry([("lazy", make_plugin(register_models=register_models))], entry_points=False)
+    assert registry.plugins[0].status == "ok"
+    from fractions import Fraction
+
+    assert registry.create("model", "lazy", {"numerator": 3, "denominator": 4}) == Fraction(3, 4)
+    with pytest.raises(ConfigError, match="does not take option 'alpha'"):
+        registry.create("model", "lazy", {"alpha": 1})
+
+
+def test_malformed_import_path_fails_the_plugin():
+    def register_models(register):
+        register("bad", "no-colon-here")
+
+    registry = Registry([("bad", make_plugin(register_models=register_models))], entry_points=False)
+    assert registry.plugins[0].status == "error" and "package.module:attribute" in registry.plugins[0].error

@@ -31,10 +31,10 @@ def register_conditions(register):
 
 @hookimpl
 def register_controllers(register):
-    from .controllers import MPCController, PIDController  # numpy only; scipy is imported when solving
-
-    register("pid", PIDController, description="Bench2Drive-style PID tracker (throttle/steer/brake)")
-    register("mpc", MPCController, description="AlpaSim-style MPC tracker that sets the next ego state")
+    register("pid", "vladrivebench.controllers:PIDController",
+             description="Bench2Drive-style PID tracker (throttle/steer/brake)")
+    register("mpc", "vladrivebench.controllers:MPCController",
+             description="AlpaSim-style MPC tracker that sets the next ego state")
 
 
 @hookimpl
@@ -51,9 +51,7 @@ def register_metrics(register):
 
     for name, factory, description in BUILTIN_METRICS:
         register(name, factory, description=description)
-    from .intervention_metrics import InterventionMetric  # numpy only; scipy/statsmodels when computing
-
-    register("intervention", InterventionMetric, description="open-loop, closed-loop and safety intervention "
+    register("intervention", "vladrivebench.intervention_metrics:InterventionMetric", description="open-loop, closed-loop and safety intervention "
              "tables (paper Tables 5-9) with the selfsplice gate")
 
 

@@ -77,13 +77,19 @@ def list_plugins(as_json: bool) -> None:
         for kind in sorted(info.registered):
             names = info.registered[kind]
             if kind == "scenario":
-                names = [_short_path(n) for n in names]
+                names = [_describe_scenario_source(n) for n in names]
             click.echo(f"    {kind}: {', '.join(names)}")
 
 
-def _short_path(path: str) -> str:
-    parts = path.replace("\\", "/").split("/")
-    return "/".join(parts[-2:]) if len(parts) > 2 else path
+def _describe_scenario_source(path: str) -> str:
+    """``…/scenarios (24 files)`` for a pack directory, the file's name for a single file."""
+    from pathlib import Path
+
+    source = Path(path)
+    if source.is_dir():
+        count = sum(1 for p in source.iterdir() if p.suffix.lower() in {".toml", ".json"})
+        return f"{source} ({count} files)"
+    return str(source)
 
 
 def _add_command_modules() -> None:

@@ -28,8 +28,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol, runtime_checkable
 
-import numpy as np
-
 from .errors import ConfigError, UnknownNameError
 from .options import load_data_file
 from .records import CoT, CoTFormat
@@ -418,6 +416,8 @@ class AblationCondition:
 # -- text operations ------------------------------------------------------------------------------------
 def shuffle_words(text: str, seed: int) -> str:
     """The words of ``text`` (split on whitespace) in a random order fixed by ``seed``."""
+    import numpy as np  # here, not at the top: registering the conditions must not import numpy
+
     words = text.split()
     order = np.random.default_rng(seed).permutation(len(words))
     return " ".join(words[i] for i in order)

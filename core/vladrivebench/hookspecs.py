@@ -5,6 +5,9 @@ Registration must be cheap: register a *factory* (a class or function) and impor
 transformers, libsumo) inside it, when the component is first created — ``vdb list-plugins`` and
 ``vdb --help`` load every plugin and must stay fast and light.
 
+A factory may also be given as its import path, ``"package.module:attribute"``: it is imported when
+the component is first built (and its signature checked against the options then).
+
 Hooks evolve compatibly: arguments may be added, never renamed or removed. A plugin implements only the
 hooks it needs; a misspelt hook name is reported as an error of that plugin.
 """

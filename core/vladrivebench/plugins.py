@@ -9,6 +9,7 @@ reported (name, distribution, error) and leaves no trace, while all others keep 
 
 from __future__ import annotations
 
+import importlib
 import importlib.metadata as metadata
 import inspect
 import os
@@ -26,6 +27,34 @@ ENTRY_POINT_GROUP = PROJECT_NAME
 STRICT_ENV = "VDB_STRICT_PLUGINS"
 DISABLE_ENV = "VDB_DISABLE_PLUGINS"
 KINDS = tuple(hookspecs.REGISTER_HOOKS.values())
+
+
+class LazyFactory:
+    """A factory named by its import path (``"package.module:attribute"``), imported on first use.
+
+    Registering ``register("name", "my_plugin.model:make_model")`` keeps registration free of the
+    module's imports; the factory's signature (used to check options) is the target's.
+    """
+
+    def __init__(self, target: str):
+        module, sep, attribute = target.partition(":")
+        if not sep or not module or not attribute:
+            raise ValueError(f"a factory path must look like 'package.module:attribute', got {target!r}")
+        self.target = target
+
+    def resolve(self) -> Callable[..., Any]:
+        module, _, attribute = self.target.partition(":")
+        return getattr(importlib.import_module(module), attribute)
+
+    def __call__(self, *args: Any, **kwargs: Any) -> Any:
+        return self.resolve()(*args, **kwargs)
+
+    @property
+    def __signature__(self) -> inspect.Signature:
+        return inspect.signature(self.resolve())
+
+    def __repr__(self) -> str:
+        return f"LazyFactory({self.target!r})"
 
 
 @dataclass(frozen=True)
@@ -142,6 +171,8 @@ class Registry:
             else:
                 if not isinstance(name_or_path, str) or not name_or_path:
                     raise ValueError(f"{kind} names must be non-empty strings, got {name_or_path!r}")
+                if isinstance(factory, str):
+                    factory = LazyFactory(factory)
                 if not callable(factory):
                     raise ValueError(f"{kind} {name_or_path!r} needs a callable factory")
                 comp = Component(kind, name_or_path, factory, info.name, info.distribution, description)

@@ -9,9 +9,10 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import numpy as np
+if TYPE_CHECKING:  # numpy is imported where it is used: `vdb list-plugins` imports records
+    import numpy as np
 
 ACTOR_KINDS = ("pedestrian", "car", "animal", "traffic_light", "stop_sign")
 LIGHT_COLOURS = ("red", "yellow", "green")
@@ -174,6 +175,8 @@ class Trajectory:
 
     def problems(self) -> str | None:
         """Why this trajectory cannot be used, or ``None`` when it is well formed."""
+        import numpy as np
+
         times, xy = np.asarray(self.times), np.asarray(self.xy)
         if times.ndim != 1 or len(times) == 0:
             return f"times must have shape (T,) with T > 0, got {times.shape}"
@@ -187,12 +190,16 @@ class Trajectory:
 
     def forward_displacement(self, horizon_s: float) -> float:
         """Forward (ego-x) displacement predicted at ``horizon_s``, linearly interpolated from t = 0."""
+        import numpy as np
+
         t = np.concatenate([[0.0], np.asarray(self.times, dtype=float)])
         x = np.concatenate([[0.0], np.asarray(self.xy, dtype=float)[:, 0]])
         return float(np.interp(horizon_s, t, x))
 
     def path_length(self, horizon_s: float) -> float:
         """Distance travelled along the waypoints up to ``horizon_s``."""
+        import numpy as np
+
         t = np.concatenate([[0.0], np.asarray(self.times, dtype=float)])
         pts = np.vstack([[0.0, 0.0], np.asarray(self.xy, dtype=float)])
         keep = t <= horizon_s + 1e-9
@@ -200,6 +207,8 @@ class Trajectory:
         return float(np.sum(np.hypot(seg[:, 0], seg[:, 1])))
 
     def to_json(self) -> dict[str, list]:
+        import numpy as np
+
         return {"times": np.asarray(self.times).tolist(), "xy": np.asarray(self.xy).tolist()}
 
 
