@@ -198,3 +198,11 @@ def test_formatting_helpers():
     assert p_text(None) == "—"
     assert interval_text({"mean": -1.6, "low": -2.2, "high": -1.1}) == "-1.6 [-2.2, -1.1]*"
     assert interval_text({"mean": -0.1, "low": -0.5, "high": 0.2}) == "-0.1 [-0.5, +0.2]"
+
+
+def test_the_seeds_default_matches_the_protocols():
+    from vladrivebench.cmd_intervene import intervene_command
+    from vladrivebench.intervention import DEFAULT_SEEDS
+
+    option = next(p for p in intervene_command.params if p.name == "seeds")
+    assert option.default == DEFAULT_SEEDS
