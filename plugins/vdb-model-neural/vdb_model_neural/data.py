@@ -2,9 +2,11 @@
 closed-loop (through the benchmark's own runner and controllers), and every visited step becomes a sample.
 
 Variants randomise what the families leave open: where the critical actor stands (distance, lateral
-offset: kerbside or in the lane), the light colour, the scenery, the ego's initial speed, and the speed
-the driving expert cruises at (so the models see states off the expert's exact path). The *labels* of a
-sample are always the expert's decision for the visited state, so a model learns to recover.
+offset: kerbside or in the lane), the light colour, the scenery, the ego's initial speed, the speed the
+driving expert cruises at, and in half of the episodes a late reaction to stops (the car drives on until
+a random distance before the stop point) — so the models see the states a model that brakes late ends up
+in. The *labels* of a sample are always the expert's decision for the visited state, so a model learns to
+recover (DAgger-style).
 """
 
 from __future__ import annotations
@@ -26,6 +28,8 @@ TRAIN_FAMILIES = ("pedestrian", "stopped_car", "traffic_light", "stop_sign", "ba
 """Families the models learn from; the intervention routes (E.1, E.2, SAFE.*) are held out for evaluation."""
 SCENERIES = ("plain", "suburban", "urban")
 SLOW_SPEED = 1.5
+LATE_SHARE = 0.5
+"""Share of episodes whose driving reacts late to a stop (the labels are always the expert's decision)."""
 
 
 @dataclass
@@ -96,10 +100,11 @@ class ExpertModel:
     trajectory_spec = TrajectorySpec(3.0, 10.0)
 
     def __init__(self, rng: np.random.Generator, exec_cruise: float, record: Callable[[dict], None],
-                 max_wait_steps: int = 15):
+                 max_wait_steps: int = 15, late_reaction: float | None = None):
         self.rng, self.exec_cruise, self.record = rng, exec_cruise, record
         self.driver = ExpertDriver()
         self.max_wait_steps, self.waited = max_wait_steps, 0
+        self.late_reaction = late_reaction
 
     def reset(self, seed: int) -> None:
         self.driver.reset()
@@ -132,7 +137,10 @@ class ExpertModel:
             "scenario_id": obs.scenario_id, "perception": perception_targets(obs, decision),
         }
         self.record(sample)
-        executed = rollout_controls(obs.ego.speed, obs.ground_truth, decision.stop_distance, self.exec_cruise)
+        stop_at = decision.stop_distance
+        if self.late_reaction is not None and stop_at is not None and stop_at > self.late_reaction:
+            stop_at = None  # drive on: the late reactions put the data where a model that brakes late ends up
+        executed = rollout_controls(obs.ego.speed, obs.ground_truth, stop_at, self.exec_cruise)
         return CoT(text=sample["sentence"], state=executed)
 
     def splice_cot(self, obs, text, rng):  # pragma: no cover - the expert is never intervened on
@@ -209,7 +217,8 @@ def generate(seed: int, episodes: int, every: int = 2, scenarios: Iterable | Non
         def record(sample: dict, kept=kept) -> None:
             kept.append(sample)
 
-        expert = ExpertModel(rng, float(rng.uniform(5.5, 9.5)), record)
+        late = float(rng.uniform(2.0, 25.0)) if rng.random() < LATE_SHARE else None
+        expert = ExpertModel(rng, float(rng.uniform(5.5, 9.5)), record, late_reaction=late)
         controller = MPCController() if episode % 2 else PIDController()
         try:
             run_episode(expert, simulator, controller, scenario, int(rng.integers(1 << 30)))

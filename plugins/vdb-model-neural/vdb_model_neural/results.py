@@ -10,6 +10,7 @@ so an interrupted regeneration redoes only what is missing.
 from __future__ import annotations
 
 import argparse
+import json
 import re
 import subprocess
 import sys
@@ -54,6 +55,21 @@ def experiments(seeds: dict[str, int]) -> list[tuple[str, list[list[str]]]]:
     ]
 
 
+def training_table() -> str:
+    """What the shipped bundles say about how they were trained (from their config JSON files)."""
+    from .common import bundle_paths
+
+    lines = ["| model | seed | expert samples | optimiser steps × batch | training wall time | weights file |",
+             "|---|---|---|---|---|---|"]
+    for name in ("kv", "qa"):
+        paths = bundle_paths(name)
+        training = json.loads(paths["config"].read_text())["training"]
+        size = paths["weights"].stat().st_size / 1e6
+        lines.append(f"| `{name}` | {training['seed']} | {training['samples']} | {training['steps']} × "
+                     f"{training['batch']} | {training.get('wall_time_s', '?')} s | {size:.1f} MB |")
+    return "\n".join(lines)
+
+
 def run_vdb(args: list[str]) -> str:
     command = [sys.executable, "-m", "vladrivebench.cli", *args]
     print("$ vdb " + " ".join(args), file=sys.stderr, flush=True)
@@ -81,6 +97,8 @@ def main() -> None:
     seeds = ({"open": 3, "closed": 3, "safety": 2, "suite": 1} if args.quick
              else {"open": 7, "closed": 5, "safety": 4, "suite": 2})
     only = set(args.only.split(",")) if args.only else None
+    if not only or "training" in only:
+        README.write_text(fill(README.read_text(), "training", training_table()))
     for name, commands in experiments(seeds):
         if only and name not in only:
             continue
