@@ -41,3 +41,19 @@ def test_intervene_default_seeds_is_the_protocols():
     (intervene,) = [c for c in COMMANDS if c.name == "intervene"]
     (seeds,) = [p for p in intervene.params if p.name == "seeds"]
     assert seeds.default == DEFAULT_SEEDS
+
+
+def test_a_command_exit_code_reaches_the_shell():
+    import click
+    from vladrivebench import cli
+
+    @click.command("exit-seven")
+    @click.pass_context
+    def exit_seven(ctx):
+        ctx.exit(7)
+
+    cli.cli.add_command(exit_seven)
+    try:
+        assert cli.main(["exit-seven"]) == 7
+    finally:
+        cli.cli.commands.pop("exit-seven")

@@ -105,7 +105,7 @@ _add_command_modules()
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the console script: one-line errors, exit status 2 for user errors."""
     try:
-        cli.main(args=argv, prog_name="vdb", standalone_mode=False)
+        outcome = cli.main(args=argv, prog_name="vdb", standalone_mode=False)
     except VdbError as exc:
         _error(str(exc))
         return exc.exit_code
@@ -126,7 +126,8 @@ def main(argv: list[str] | None = None) -> int:
         return 130
     except BrokenPipeError:
         return 0
-    return 0
+    # without standalone mode, click returns the code of a `ctx.exit(n)` (or the command's return value)
+    return outcome if isinstance(outcome, int) else 0
 
 
 def _error(message: str) -> None:

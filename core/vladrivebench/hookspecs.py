@@ -107,8 +107,8 @@ def register_scenarios(register: Register) -> None:
 def register_conditions(register: Register) -> None:
     """Register CoT intervention conditions.
 
-    ``register(name, factory, description="")``: ``factory()`` returns a condition object understood by
-    the intervention protocol (see ``vladrivebench.intervention``).
+    ``register(name, factory, description="")``: ``factory()`` returns a condition: an object satisfying
+    ``vladrivebench.conditions.Condition`` (e.g. a ``TextCondition``), whose ``name`` equals ``name``.
     """
 
 
