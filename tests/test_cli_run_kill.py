@@ -45,6 +45,13 @@ def wait_for(path: Path, timeout: float = 20.0) -> None:
         time.sleep(0.01)
 
 
+def wait_for_episodes(out: Path, count: int, timeout: float = 30.0) -> None:
+    """Until ``count`` complete episode logs exist (kill points by progress, not by the clock)."""
+    deadline = time.monotonic() + timeout
+    while len(list(out.glob("episodes/*.mcap"))) < count and time.monotonic() < deadline:
+        time.sleep(0.005)
+
+
 @pytest.mark.parametrize(("executor", "attempts", "span"), [(("--workers", 1), 3, 1.0), (("--workers", 2), 3, 3.0)],
                          ids=["sequential", "process"])
 def test_killed_runs_resume_to_byte_identical_results(tmp_path, executor, attempts, span):
@@ -60,9 +67,10 @@ def test_killed_runs_resume_to_byte_identical_results(tmp_path, executor, attemp
                                    start_new_session=True)
         if attempt == 0:  # anywhere from interpreter start-up on, possibly before the manifest exists
             time.sleep(float(rng.uniform(0.1, 1.0)))
-        else:  # somewhere within the sweep: after the manifest, before the last episode
+        else:  # somewhere within the sweep: after the manifest and a random number of finished episodes
             wait_for(out / "run.json")
-            time.sleep(float(rng.uniform(0.0, span)))
+            wait_for_episodes(out, int(rng.integers(0, len(expected))))
+            time.sleep(float(rng.uniform(0.0, span / 100)))
         os.killpg(process.pid, signal.SIGKILL)  # the whole group, as a job scheduler or OOM kill of a session would
         process.wait()
         states.append(((out / "run.json").exists(), len(list(out.glob("episodes/*.mcap")))))
