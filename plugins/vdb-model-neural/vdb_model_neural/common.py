@@ -74,21 +74,29 @@ class VisionEncoder(nn.Module):
             nn.Conv2d(channels, channels, 3, stride=2, padding=1), nn.GELU(),
         )
         self.project = nn.Linear(2 * channels, hidden)
-        self.position = nn.Parameter(torch.zeros(rows * cols, hidden))
+        self.position = nn.Parameter(torch.zeros(2 * rows * cols, hidden))
         self.ego = nn.Linear(1 + len(NAV_COMMANDS), hidden)
 
     @property
     def n_tokens(self) -> int:
-        return self.rows * self.cols + 1
+        return 2 * self.rows * self.cols + 1
 
     def forward(self, images: torch.Tensor, ego: torch.Tensor) -> torch.Tensor:
-        """``(N, 3, H, W)`` images and ``(N, F)`` ego features → ``(N, rows·cols + 1, hidden)`` prefix."""
+        """``(N, 3, H, W)`` images and ``(N, F)`` ego features → ``(N, 2·rows·cols + 1, hidden)`` prefix:
+        the whole view, a 2× zoom on the road ahead (where distant obstacles and lights are a few pixels),
+        and the ego token."""
+        height, width = images.shape[-2:]
+        ahead = images[:, :, int(0.35 * height) : int(0.75 * height), int(0.25 * width) : int(0.75 * width)]
+        zoomed = F.interpolate(ahead, scale_factor=2.0, mode="nearest")
+        tokens = torch.cat([self._grid(images), self._grid(zoomed)], dim=1) + self.position
+        return torch.cat([tokens, self.ego(ego).unsqueeze(1)], dim=1)
+
+    def _grid(self, images: torch.Tensor) -> torch.Tensor:
         features = self.convs(images)
         # Max pooling keeps small bright things (a lit lamp, a distant pedestrian) that averaging dilutes.
         grid = torch.cat([F.adaptive_avg_pool2d(features, (self.rows, self.cols)),
                           F.adaptive_max_pool2d(features, (self.rows, self.cols))], dim=1)
-        tokens = self.project(grid.flatten(2).transpose(1, 2)) + self.position
-        return torch.cat([tokens, self.ego(ego).unsqueeze(1)], dim=1)
+        return self.project(grid.flatten(2).transpose(1, 2))
 
 
 def timestep_embedding(t: torch.Tensor, dim: int) -> torch.Tensor:

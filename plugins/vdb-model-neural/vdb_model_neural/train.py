@@ -24,8 +24,8 @@ from pathlib import Path
 import click
 
 DEFAULTS = {
-    "kv": {"steps": 2000, "batch": 48, "lr": 2e-3, "counterfactual_share": 0.4, "vocab": 640},
-    "qa": {"steps": 1600, "batch": 24, "lr": 2e-3, "mismatch_share": 0.5, "vocab": 768},
+    "kv": {"steps": 2400, "batch": 48, "lr": 2e-3, "counterfactual_share": 0.4, "vocab": 640},
+    "qa": {"steps": 2000, "batch": 24, "lr": 2e-3, "mismatch_share": 0.5, "vocab": 768},
 }
 
 
@@ -179,7 +179,7 @@ def _perception_probe(network):
 
     from .data import PERCEIVED_KINDS, PERCEIVED_LIGHTS
 
-    grid = network.encoder.rows * network.encoder.cols
+    grid = network.encoder.n_tokens - 1
     outputs = 3 + len(PERCEIVED_KINDS) + len(PERCEIVED_LIGHTS)
     return nn.Sequential(nn.Flatten(), nn.Linear(grid * network.config.hidden, 128), nn.GELU(),
                          nn.Linear(128, outputs))
@@ -196,7 +196,7 @@ def _perception_loss(probe, prefix, targets):
     distance = F.smooth_l1_loss(out[:, 2][present], targets[:, 3][present]) if present.any() else out.sum() * 0
     return (F.binary_cross_entropy_with_logits(out[:, 0], targets[:, 0])
             + F.binary_cross_entropy_with_logits(out[:, 1], targets[:, 2])
-            + 5.0 * distance
+            + 10.0 * distance
             + F.cross_entropy(out[:, 3 : 3 + k], targets[:, 1].long())
             + F.cross_entropy(out[:, 3 + k :], targets[:, 4].long()))
 
