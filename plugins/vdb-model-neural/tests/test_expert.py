@@ -99,7 +99,10 @@ def test_counterfactuals_state_the_opposite_and_follow_it_unless_vision_vetoes(s
     action, text, controls = expert.counterfactual(blocked, decision, 8.0, rng)
     assert action == "go" and text in expert.GO_CLEAR
     obeyed = expert.salience(blocked) < expert.SALIENCE_THRESHOLD
-    followed = expert.rollout_controls(speed, blocked.ground_truth, None if obeyed else decision.stop_distance, 8.0)
+    if obeyed:  # the "clear road" text is followed, at the cruise speed it commits to
+        followed = expert.rollout_controls(speed, blocked.ground_truth, None, expert.cruise_for(text, 8.0))
+    else:  # vision vetoes: the expert's own stop
+        followed = expert.rollout_controls(speed, blocked.ground_truth, decision.stop_distance, 8.0)
     assert np.array_equal(controls, followed)
 
 
