@@ -106,7 +106,7 @@ def main() -> None:
             argv = [a.replace("{out}", str(args.out)) for a in command]
             text = run_vdb(argv)
             shown = " ".join(a.replace(str(args.out), "OUT") for a in argv)
-            outputs.append(f"$ vdb {shown}\n{text}")
+            outputs.append(f"$ vdb {shown}\n{text.replace(str(args.out), 'OUT')}")
         body = "```text\n" + "\n\n".join(outputs) + "\n```"
         README.write_text(fill(README.read_text(), name, body))
         print(f"README section {name} updated", file=sys.stderr)
