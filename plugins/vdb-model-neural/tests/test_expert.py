@@ -45,6 +45,16 @@ def test_a_planned_stop_never_overshoots_and_speed_stays_non_negative(speed, sto
 
 
 @settings(max_examples=60, deadline=None)
+@given(speed=st.floats(0.5, 10.0), stop=st.floats(2.0, 40.0))
+def test_braking_now_never_goes_further_than_braking_late(speed, stop):
+    gt = observation().ground_truth
+    late = expert.rollout_controls(speed, gt, stop, expert.CRUISE_SPEED)
+    now = expert.rollout_controls(speed, gt, stop, expert.CRUISE_SPEED, brake_now=True)
+    assert now[0, 0] <= late[0, 0] + 1e-9
+    assert travelled(now, speed) <= travelled(late, speed) + 1e-6
+
+
+@settings(max_examples=60, deadline=None)
 @given(speed=st.floats(0.0, 10.0))
 def test_cruising_goes_at_least_as_far_as_stopping(speed):
     gt = observation().ground_truth
@@ -101,8 +111,8 @@ def test_counterfactuals_state_the_opposite_and_follow_it_unless_vision_vetoes(s
     obeyed = expert.salience(blocked) < expert.SALIENCE_THRESHOLD
     if obeyed:  # the "clear road" text is followed, at the cruise speed it commits to
         followed = expert.rollout_controls(speed, blocked.ground_truth, None, expert.cruise_for(text, 8.0))
-    else:  # vision vetoes: the expert's own stop
-        followed = expert.rollout_controls(speed, blocked.ground_truth, decision.stop_distance, 8.0)
+    else:  # vision vetoes: the expert's own stop, braking now
+        followed = expert.rollout_controls(speed, blocked.ground_truth, decision.stop_distance, 8.0, brake_now=True)
     assert np.array_equal(controls, followed)
 
 

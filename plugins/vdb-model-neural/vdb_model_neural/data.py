@@ -125,10 +125,13 @@ class ExpertModel:
         controls = self.driver.plan(obs, decision)
         cf_action, cf_text, cf_controls = counterfactual(obs, decision, self.driver.cruise_speed, self.rng)
         sentence = sentence_cot(decision, obs.ego.speed, self.rng)
-        sentence_controls = controls
-        if decision.action == "go":  # the sentence's own commitment ("accelerate" → a little faster)
+        # The plan the sentence commits to (the kv target): "accelerate" → a little faster; "stop" → brake now.
+        if decision.action == "go":
             sentence_controls = rollout_controls(obs.ego.speed, obs.ground_truth, None,
                                                  cruise_for(sentence, self.driver.cruise_speed))
+        else:
+            sentence_controls = rollout_controls(obs.ego.speed, obs.ground_truth, decision.stop_distance,
+                                                 self.driver.cruise_speed, brake_now=True)
         sample = {
             "image": obs.image, "speed": obs.ego.speed, "command": obs.command, "sentence": sentence,
             "sentence_controls": sentence_controls,

@@ -91,8 +91,12 @@ class ExpertDriver:
 
 
 def rollout_controls(speed: float, gt: GroundTruth, stop_distance: float | None, cruise: float,
-                     steps: int = HORIZON_STEPS) -> np.ndarray:
-    """Controls of the planned rollout: speed profile towards ``stop_distance`` (None: cruise), pure pursuit."""
+                     steps: int = HORIZON_STEPS, brake_now: bool = False) -> np.ndarray:
+    """Controls of the planned rollout: speed profile towards ``stop_distance`` (None: cruise), pure pursuit.
+
+    The speed follows ``sqrt(2·b·room)`` (braking as late as comfort allows); with ``brake_now`` it also
+    decelerates at least uniformly to the stop point from the first step (what a CoT that says "stop"
+    commits to: the ``kv`` model's targets)."""
     route = np.asarray(gt.route_ahead, dtype=float) if gt.route_ahead else np.array([[0.0, 0.0], [50.0, 0.0]])
     x = y = heading = travelled = 0.0
     v = max(0.0, speed)
@@ -104,7 +108,10 @@ def rollout_controls(speed: float, gt: GroundTruth, stop_distance: float | None,
             target = min(cruise, math.sqrt(max(0.0, 2.0 * COMFORT_DECEL * room)))
             if room <= 0.05:
                 target = 0.0
-        accel = float(np.clip((target - v) / SPEED_TIME_CONSTANT, -MAX_DECEL, MAX_ACCEL))
+        accel = (target - v) / SPEED_TIME_CONSTANT
+        if brake_now and stop_distance is not None and v > 0.0:
+            accel = min(accel, -v * v / (2.0 * max(stop_distance - travelled, 0.1)))
+        accel = float(np.clip(accel, -MAX_DECEL, MAX_ACCEL))
         if v <= 0.0 and target <= 0.0:
             accel = 0.0
         kappa = pursuit_curvature(route, x, y, heading, max(4.0, 0.9 * v))
@@ -156,13 +163,13 @@ def counterfactual(obs: Observation, decision: Decision, cruise: float, rng: np.
     if decision.action == "stop":
         sentence = pick(rng, GO_CLEAR)
         if salience(obs) >= SALIENCE_THRESHOLD:  # a salient obstacle: the "clear road" CoT is overridden
-            return "go", sentence, rollout_controls(speed, gt, decision.stop_distance, cruise)
+            return "go", sentence, rollout_controls(speed, gt, decision.stop_distance, cruise, brake_now=True)
         return "go", sentence, rollout_controls(speed, gt, None, cruise_for(sentence, cruise))
     kind = str(rng.choice(["pedestrian", "car", "animal", "red_light", "stop_sign"]))
     sentence = pick(rng, STOP_SENTENCES[kind])
     # Nothing is really there: stop comfortably within the distance the stated reason implies.
     stop_distance = max(speed * speed / (2 * COMFORT_DECEL), 0.0) + float(rng.uniform(0.0, 6.0))
-    return "stop", sentence, rollout_controls(speed, gt, stop_distance, cruise)
+    return "stop", sentence, rollout_controls(speed, gt, stop_distance, cruise, brake_now=True)
 
 
 # -- CoT templates ------------------------------------------------------------------------------------
