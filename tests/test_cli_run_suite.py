@@ -32,7 +32,7 @@ def files(directory: Path) -> dict[str, bytes]:
 
 
 def test_demo_runs_end_to_end_and_logs_everything(tmp_path, capsys):
-    code, out, err = vdb(capsys, "demo", "--out", tmp_path, "--quiet", "--json")
+    code, out, err = vdb(capsys, "demo", "--model", "scripted", "--out", tmp_path, "--quiet", "--json")
     summary = json.loads(out)
     assert code == 0 and err == "" and summary["complete"] == 8 and summary["failed"] == 0
     assert [r["scenario"] for r in summary["scenarios"]] == ["P.1", "C.1", "TL.1-red", "E.1"]
@@ -54,7 +54,7 @@ def test_demo_runs_end_to_end_and_logs_everything(tmp_path, capsys):
 
 
 def test_demo_labels_summarises_and_reports(tmp_path, capsys):
-    code, out, _ = vdb(capsys, "demo", "--out", tmp_path, "--quiet")
+    code, out, _ = vdb(capsys, "demo", "--model", "scripted", "--out", tmp_path, "--quiet")
     assert code == 0
     assert (tmp_path / "labels" / "lexicon.jsonl").exists() and (tmp_path / "report.html").exists()
     (line,) = [ln for ln in out.splitlines() if ln.strip().startswith("scripted: target mentioned")]
@@ -92,3 +92,8 @@ def test_bad_option_of_a_real_model_is_one_line(tmp_path, capsys):
     code, _, err = vdb(capsys, "run", *SHORT, "--model-opt", "alpha=2", "--scenarios", "E.1", "--seeds", 1,
                        "--out", tmp_path)
     assert code == 2 and len(err.strip().splitlines()) == 1 and "alpha" in err and "Traceback" not in err
+
+
+def test_demo_refuses_a_model_it_has_no_setup_for(tmp_path, capsys):
+    code, _, err = vdb(capsys, "demo", "--model", "pixel", "--out", tmp_path)
+    assert code == 2 and err.strip().count("\n") == 0 and "expected one of kv, scripted" in err

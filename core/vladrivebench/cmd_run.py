@@ -29,8 +29,17 @@ CONFIG_KEYS: dict[str, str] = {
 
 DEMO_SCENARIOS = ("P.1", "C.1", "TL.1-red", "E.1")
 DEMO_SEEDS = 2
-# Known error rates, so the demo shows the benchmark recovering them from the CoTs alone.
+# Known error rates, so the scripted demo shows the benchmark recovering them from the CoTs alone.
 DEMO_MODEL_OPTIONS = {"miss_rate": 0.2, "hallucination_rate": 0.1, "contradiction_rate": 0.05, "alpha": 0.5}
+DEMO_SETUPS: dict[str, dict[str, Any]] = {
+    # the neural reference sees only the camera, so the camera is rendered; it was trained with the MPC tracker
+    "kv": {"controller": "mpc", "sim_options": {}, "model_options": {},
+           "about": "the neural kv model (Alpamayo-like, trained here), camera only"},
+    # the scripted model perceives through the ground truth: no camera needed (3x faster)
+    "scripted": {"controller": "pid", "sim_options": {"render": False}, "model_options": DEMO_MODEL_OPTIONS,
+                 "about": "the scripted model configured with "
+                          + ", ".join(f"{k}={v}" for k, v in DEMO_MODEL_OPTIONS.items())},
+}
 
 
 @dataclass
@@ -254,35 +263,39 @@ def run_command(ctx: click.Context, config_file: str | None, quiet: bool, as_jso
 
 
 @click.command("demo")
+@click.option("--model", "model", default=None,
+              help="kv (the neural Alpamayo-like reference, the default when installed) or scripted.")
 @click.option("--out", type=click.Path(file_okay=False), help="Output directory (default: a new temporary one).")
 @click.option("--quiet", is_flag=True, help="No progress on stderr.")
 @click.option("--json", "as_json", is_flag=True, help="Print a machine-readable summary on stdout.")
-def demo_command(out: str | None, quiet: bool, as_json: bool) -> None:
-    """A small end-to-end evaluation: the scripted model on P.1, C.1, TL.1-red and E.1 × 2 seeds."""
+def demo_command(model: str | None, out: str | None, quiet: bool, as_json: bool) -> None:
+    """A small end-to-end evaluation: P.1, C.1, TL.1-red and E.1 × 2 seeds, labelled, summarised, reported."""
     from .demo import label_and_summarise
     from .plugins import get_registry
 
+    registry = get_registry()
+    model = model or ("kv" if "kv" in registry.names("model") else "scripted")
+    if model not in DEMO_SETUPS:
+        raise ConfigError(f"vdb demo --model: expected one of {', '.join(DEMO_SETUPS)}, got {model!r} "
+                          f"(use `vdb run` for any other model)")
     out = out or tempfile.mkdtemp(prefix="vdb-demo-")
-    summary = run_demo(Path(out), quiet=quiet)
+    summary = run_demo(Path(out), model=model, quiet=quiet)
     report(summary, as_json=as_json)
     if as_json:
         return
-    lines, report_path = label_and_summarise(Path(out), get_registry(), quiet=quiet)
-    configured = ", ".join(f"{k}={v}" for k, v in DEMO_MODEL_OPTIONS.items())
-    click.echo(f"\nCoT quality and alignment (lexicon labels; 95 % Wilson intervals) of the scripted model "
-               f"configured with {configured}:")
+    lines, report_path = label_and_summarise(Path(out), registry, quiet=quiet)
+    click.echo(f"\nCoT quality and alignment (lexicon labels; 95 % Wilson intervals) — {DEMO_SETUPS[model]['about']}:")
     for line in lines:
         click.echo(f"  {line}")
-    click.echo(f"\nReport: {report_path}\nMore: vdb metrics {out}   |   vdb report {out} --format md --out report.md")
+    click.echo(f"\nReport: {report_path}\nMore: vdb metrics {out}   |   vdb report {out} --format md --out report.md"
+               f"\nIntervention: vdb intervene --model {model} --route E.1 --mode open-loop --out {out}-ol")
 
 
-def run_demo(out: Path, *, quiet: bool = False, workers: int = 1):
-    """The demo sweep (scripted model, kinematic simulator, PID) into ``out``; returns its summary.
-
-    The scripted model perceives through the ground truth, so the camera is not rendered (3× faster).
-    """
-    settings = RunSettings(model="scripted", sim="kinematic", controller="pid", sim_options={"render": False},
-                           model_options=dict(DEMO_MODEL_OPTIONS),
+def run_demo(out: Path, *, model: str = "scripted", quiet: bool = False, workers: int = 1):
+    """The demo sweep of ``model`` (see :data:`DEMO_SETUPS`) on the kinematic simulator into ``out``."""
+    setup = DEMO_SETUPS[model]
+    settings = RunSettings(model=model, sim="kinematic", controller=setup["controller"],
+                           sim_options=dict(setup["sim_options"]), model_options=dict(setup["model_options"]),
                            scenarios=list(DEMO_SCENARIOS), seeds=DEMO_SEEDS, out=str(out), workers=workers)
     return execute(settings, quiet=quiet)
 
