@@ -288,7 +288,8 @@ def demo_command(model: str | None, out: str | None, quiet: bool, as_json: bool)
     for line in lines:
         click.echo(f"  {line}")
     click.echo(f"\nReport: {report_path}\nMore: vdb metrics {out}   |   vdb report {out} --format md --out report.md"
-               f"\nIntervention: vdb intervene --model {model} --route E.1 --mode open-loop --out {out}-ol")
+               f"\nIntervention: vdb intervene --model {model} --controller {DEMO_SETUPS[model]['controller']} "
+               f"--route E.1 --mode open-loop --out {out}-ol")
 
 
 def run_demo(out: Path, *, model: str = "scripted", quiet: bool = False, workers: int = 1):
