@@ -191,6 +191,10 @@ def open_loop_table(results: Mapping[str, Any], route: str, horizon: str, suffix
         f"p (Holm): Holm-adjusted across the {len(stats) - 1} tested conditions; * = significant at "
         f"α = {results.get('alpha', 0.05):g}. Counts: steps for n, mean, %, d (steps); seeds for d (seeds), p.",
     )
+    if any(r["condition"] != SELFSPLICE and from_json_number(r["p"]) != from_json_number(r["p"]) for r in stats):
+        notes += ("— in d (seeds) / p: every seed gave the same per-seed mean (the seed changed nothing for this "
+                  "model on this route), so the seeds are not independent replications and no seed-level test "
+                  "exists; vary something with the seed (e.g. --sim-opt position_jitter, more routes).",)
     return Table(f"intervention.open_loop.{route}.{horizon}s{suffix}",
                  f"{_validity(results)}Open-loop: predicted forward displacement at {horizon} s, route {route}",
                  ("Condition",), OPEN_LOOP_COLUMNS, tuple(rows), notes=notes, metric="intervention")

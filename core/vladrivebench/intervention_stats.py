@@ -47,18 +47,27 @@ def from_json_number(value: Any) -> float:
 
 
 # -- elementary statistics --------------------------------------------------------------------------------
-def cohens_d(values: Sequence[float]) -> float:
-    """Mean / sample standard deviation (ddof = 1) of ``values``; 0 when all are 0, ±inf when constant ≠ 0.
+def has_no_spread(x: np.ndarray) -> bool:
+    """All values equal up to floating-point rounding (relative 1e-9)."""
+    scale = max(1.0, float(np.max(np.abs(x))))
+    return float(np.ptp(x)) <= 1e-9 * scale
 
-    NaN with fewer than two values.
+
+def cohens_d(values: Sequence[float]) -> float:
+    """Mean / sample standard deviation (ddof = 1) of ``values``.
+
+    0 when all are exactly 0 (the selfsplice control). NaN with fewer than two values, and NaN when the
+    values are equal but not 0: an effect size has no meaning without spread (e.g. a deterministic model
+    on a route the seed does not change gives the same number for every seed).
     """
     x = np.asarray(values, dtype=float)
     if x.size < 2:
         return math.nan
-    mean, sd = float(np.mean(x)), float(np.std(x, ddof=1))
-    if sd == 0.0:
-        return 0.0 if mean == 0.0 else math.copysign(math.inf, mean)
-    return mean / sd
+    if np.all(x == 0.0):
+        return 0.0
+    if has_no_spread(x):
+        return math.nan
+    return float(np.mean(x)) / float(np.std(x, ddof=1))
 
 
 @dataclass(frozen=True)
@@ -73,18 +82,19 @@ class TTest:
 def one_sample_t_test(values: Sequence[float]) -> TTest:
     """Two-sided one-sample t-test of ``values`` against 0 (scipy), with the degenerate cases defined.
 
-    All values exactly 0 (e.g. selfsplice) → t = 0, p = 1; constant and non-zero → t = ±inf, p = 0;
-    fewer than two values → NaN.
+    All values exactly 0 (e.g. selfsplice) → t = 0, p = 1. Fewer than two values → NaN. Values equal up
+    to rounding but not 0 → NaN too, not p = 0: seeds that all give the same number are not independent
+    replications (the seed changed nothing), so they carry no evidence a t-test could weigh.
     """
     from scipy import stats
 
     x = np.asarray(values, dtype=float)
     if x.size < 2:
         return TTest(math.nan, math.nan, max(0, x.size - 1))
-    if np.all(x == x[0]):
-        if x[0] == 0.0:
-            return TTest(0.0, 1.0, x.size - 1)
-        return TTest(math.copysign(math.inf, x[0]), 0.0, x.size - 1)
+    if np.all(x == 0.0):
+        return TTest(0.0, 1.0, x.size - 1)
+    if has_no_spread(x):
+        return TTest(math.nan, math.nan, x.size - 1)
     with warnings.catch_warnings():
         # nearly identical values (a strong, steady effect) make scipy warn about precision; p is ~0 then
         warnings.simplefilter("ignore", RuntimeWarning)
