@@ -367,10 +367,15 @@ def build_labeler(
     progress: Any = True,
     seed: Any = 0,
 ) -> EnsembleLabeler:
-    """Build the labeler from user options (strings from the command line or values from TOML).
+    """Build the labeler from user options (strings from the command line or values from TOML); every
+    option is checked before any call is spent. This is the ``ensemble`` labeler's registered factory.
 
-    ``cache``: a file path; empty for the default (``$VDB_CACHE_DIR`` or the user's cache directory);
-    ``off`` to keep replies in memory only.
+    ``backends``: comma-separated ``KIND:MODEL[@BASE_URL][?key_env=VAR&name=ALIAS…]`` (or a list);
+    ``tie_breaker``: one more backend, asked only when a label's vote is split; ``cache``: a SQLite file
+    path, empty for the default (``$VDB_CACHE_DIR`` or the user's cache directory), ``off`` to keep
+    replies in memory only; ``concurrency``: calls in flight per backend; ``max_retries``, ``timeout``,
+    ``max_retry_after`` (seconds); ``prompt``: your prompt file; ``min_votes``: valid answers needed
+    (default: a majority of the backends).
     """
     return EnsembleLabeler(
         backends,
