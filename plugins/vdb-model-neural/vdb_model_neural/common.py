@@ -17,7 +17,7 @@ import numpy as np
 import torch
 from torch import nn
 from torch.nn import functional as F
-from vladrivebench.errors import VdbError
+from vladrivebench.errors import ConfigError, VdbError
 from vladrivebench.records import NAV_COMMANDS
 
 IMAGE_HEIGHT, IMAGE_WIDTH = 80, 160
@@ -271,3 +271,34 @@ def configure_torch(threads: int = 1) -> None:
     torch.use_deterministic_algorithms(True)
     if torch.get_num_threads() != threads:
         torch.set_num_threads(threads)
+
+
+class BundledModel:
+    """What the ``kv`` and ``qa`` models share: options checked, torch configured, the weights bundle
+    loaded (safetensors only) into ``network_class``; ``_setup`` does the rest. ``from_network`` wraps an
+    in-memory network (training, tests) without reading weights files."""
+
+    name: str
+    network_class: type
+
+    def __init__(self, splice_mode: str = "sequential", weights_dir: str | None = None, threads: int = 1):
+        from .toolkit import SPLICE_MODES
+
+        if splice_mode not in SPLICE_MODES:
+            raise ConfigError(f"model {self.name!r} option splice_mode={splice_mode!r} is not known "
+                              f"(expected one of: {', '.join(SPLICE_MODES)})")
+        configure_torch(threads)
+        directory = Path(weights_dir) if weights_dir else None
+        config, codec, tensors = load_bundle(self.name, directory)
+        network = self.network_class(config)
+        load_state(self.name, network, tensors, directory)
+        self._setup(network.eval(), codec, splice_mode)
+
+    @classmethod
+    def from_network(cls, network: nn.Module, codec: TextCodec, splice_mode: str = "sequential"):
+        model = cls.__new__(cls)
+        model._setup(network.eval(), codec, splice_mode)
+        return model
+
+    def _setup(self, network: nn.Module, codec: TextCodec, splice_mode: str) -> None:
+        raise NotImplementedError

@@ -11,7 +11,6 @@ markers — generated or spliced — reaches the action.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 import torch
@@ -22,14 +21,12 @@ from vladrivebench.records import CoT, CoTFormat, Observation, Trajectory, Traje
 
 from . import toolkit
 from .common import (
+    BundledModel,
     ModelConfig,
     TextCodec,
     VisionEncoder,
-    configure_torch,
     ego_features,
     image_batch,
-    load_bundle,
-    load_state,
     timestep_embedding,
 )
 
@@ -148,29 +145,13 @@ class KVState:
     token_ids: tuple[int, ...]
 
 
-class KVModel:
+class KVModel(BundledModel):
     """The ``kv`` reference VLA (VLAModel protocol). Options: ``splice_mode`` (``sequential`` or
     ``prefill``), ``weights_dir`` (a folder with ``kv.safetensors`` & co.), ``threads``."""
 
     name = "kv"
 
-    def __init__(self, splice_mode: str = "sequential", weights_dir: str | None = None, threads: int = 1):
-        if splice_mode not in toolkit.SPLICE_MODES:
-            raise ConfigError(f"model 'kv' option splice_mode={splice_mode!r} is not known (expected one of: "
-                              f"{', '.join(toolkit.SPLICE_MODES)})")
-        configure_torch(threads)
-        directory = Path(weights_dir) if weights_dir else None
-        config, codec, tensors = load_bundle(self.name, directory)
-        network = KVNetwork(config)
-        load_state(self.name, network, tensors, directory)
-        self._setup(network.eval(), codec, splice_mode)
-
-    @classmethod
-    def from_network(cls, network: KVNetwork, codec: TextCodec, splice_mode: str = "sequential") -> KVModel:
-        """Wrap an in-memory network (training, tests) without reading weights files."""
-        model = cls.__new__(cls)
-        model._setup(network.eval(), codec, splice_mode)
-        return model
+    network_class = KVNetwork
 
     def _setup(self, network: KVNetwork, codec: TextCodec, splice_mode: str) -> None:
         self.network, self.codec, self.splice_mode = network, codec, splice_mode

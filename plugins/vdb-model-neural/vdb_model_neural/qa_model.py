@@ -11,7 +11,6 @@ hashes that vector together with the cache.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 import torch
@@ -21,14 +20,12 @@ from vladrivebench.records import CoT, CoTFormat, Observation, Trajectory, Traje
 
 from . import toolkit
 from .common import (
+    BundledModel,
     ModelConfig,
     TextCodec,
     VisionEncoder,
-    configure_torch,
     ego_features,
     image_batch,
-    load_bundle,
-    load_state,
 )
 from .kv_model import _observation_key
 
@@ -74,27 +71,12 @@ class QAState:
     token_ids: dict[str, tuple[int, ...]]
 
 
-class QAModel:
+class QAModel(BundledModel):
     """The ``qa`` reference VLA (VLAModel protocol). Options: ``splice_mode``, ``weights_dir``, ``threads``."""
 
     name = "qa"
 
-    def __init__(self, splice_mode: str = "sequential", weights_dir: str | None = None, threads: int = 1):
-        if splice_mode not in toolkit.SPLICE_MODES:
-            raise ConfigError(f"model 'qa' option splice_mode={splice_mode!r} is not known (expected one of: "
-                              f"{', '.join(toolkit.SPLICE_MODES)})")
-        configure_torch(threads)
-        directory = Path(weights_dir) if weights_dir else None
-        config, codec, tensors = load_bundle(self.name, directory)
-        network = QANetwork(config)
-        load_state(self.name, network, tensors, directory)
-        self._setup(network.eval(), codec, splice_mode)
-
-    @classmethod
-    def from_network(cls, network: QANetwork, codec: TextCodec, splice_mode: str = "sequential") -> QAModel:
-        model = cls.__new__(cls)
-        model._setup(network.eval(), codec, splice_mode)
-        return model
+    network_class = QANetwork
 
     def _setup(self, network: QANetwork, codec: TextCodec, splice_mode: str) -> None:
         self.network, self.codec, self.splice_mode = network, codec, splice_mode
