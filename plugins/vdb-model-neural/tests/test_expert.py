@@ -88,6 +88,17 @@ def test_the_expert_stops_for_red_and_passes_green(distance, colour):
     assert decision.action == ("stop" if colour == "red" else "go")
 
 
+@settings(max_examples=80, deadline=None)
+@given(distance=st.floats(1.5, 60.0), colour=st.sampled_from(["red", "yellow", "green"]),
+       speed=st.floats(0.0, 10.0), seed=st.integers(0, 1000))
+def test_a_sentence_that_names_a_light_colour_names_the_true_one(distance, colour, speed, seed):
+    obs = observation(speed=speed, kind="traffic_light", distance=distance, light=colour)
+    decision = expert.ExpertDriver().decide(obs)
+    sentence = expert.sentence_cot(decision, speed, np.random.default_rng(seed)).lower()
+    named = {c for c in ("red", "yellow", "green") if c in sentence}
+    assert named <= {colour}
+
+
 def test_the_stop_sign_is_passed_after_a_full_stop():
     driver = expert.ExpertDriver()
     assert driver.decide(observation(speed=5.0, kind="stop_sign", distance=10.0)).action == "stop"
@@ -107,7 +118,7 @@ def test_counterfactuals_state_the_opposite_and_follow_it_unless_vision_vetoes(s
     blocked = observation(speed=speed, kind="pedestrian", distance=distance, blocking=True)
     decision = expert.ExpertDriver().decide(blocked)
     action, text, controls = expert.counterfactual(blocked, decision, 8.0, rng)
-    assert action == "go" and text in expert.GO_CLEAR
+    assert action == "go" and text in expert.GO_CLEAR + expert.GO_REASON["not_blocking_pedestrian"]
     obeyed = expert.salience(blocked) < expert.SALIENCE_THRESHOLD
     if obeyed:  # the "clear road" text is followed, at the cruise speed it commits to
         followed = expert.rollout_controls(speed, blocked.ground_truth, None, expert.cruise_for(text, 8.0))
@@ -139,3 +150,15 @@ def test_cot_templates_cover_every_decision():
         slots = expert.slot_cot(observation(kind=kind, distance=10.0, blocking=True), decision, rng)
         assert set(slots) == {"scene", "objects", "decision"} and "stop" in slots["decision"]
         assert slots["objects"].startswith(kind.capitalize())
+
+
+@settings(max_examples=60, deadline=None)
+@given(speed=st.floats(0.0, 10.0), stop=st.floats(0.0, 120.0))
+def test_a_stop_cot_stops_at_its_point_and_approaches_only_a_far_one(speed, stop):
+    gt = observation(speed=speed).ground_truth
+    committed = travelled(expert.rollout_controls(speed, gt, stop, 8.0, brake_now=True), speed)
+    if speed * speed / (2 * expert.MAX_DECEL) < stop:
+        assert committed <= stop + 0.25  # 10 Hz discretisation
+    if speed == 0.0:  # from rest: approach a far stop point, wait for a near one
+        assert (committed > 0.5) == (stop > expert.APPROACH_MIN_ROOM + 1.0) or \
+            expert.APPROACH_MIN_ROOM <= stop <= expert.APPROACH_MIN_ROOM + 1.0

@@ -25,7 +25,7 @@ def tiny_dataset(n: int = 24) -> Dataset:
         commands=["follow_lane"] * n, sentences=[expert.sentence_cot(d, 5.0, rng) for d in rows],
         slots=[expert.slot_cot(obs, d, rng) for d in rows], controls=controls, sentence_controls=controls,
         waypoints=np.cumsum(np.ones((n, 30, 2)), axis=1), cf_sentences=[expert.pick(rng, expert.GO_CLEAR)] * n,
-        cf_controls=controls[::-1].copy(), decisions=[d.action for d in rows], scenario_ids=["x"] * n,
+        cf_controls=controls[::-1].copy(), cf_vetoed=np.arange(n) % 4 == 1, decisions=[d.action for d in rows], scenario_ids=["x"] * n,
         perception=np.array([[d.action == "stop", 2 * (d.action == "stop"), 0, 0.5, 0] for d in rows], np.float32),
     )
 
@@ -46,3 +46,12 @@ def test_training_is_reproducible_and_its_bundle_loads(tmp_path, name, trainer, 
     for key, value in first.state_dict().items():
         assert torch.equal(loaded.network.state_dict()[key], value), key
     assert config.training["seed"] == 3
+
+
+def test_expert_data_is_the_same_whatever_the_number_of_workers():
+    from vdb_model_neural.data import generate
+
+    one, two = generate(5, 2, workers=1), generate(5, 2, workers=2)
+    assert len(one) == len(two) > 0
+    assert np.array_equal(one.images, two.images) and np.array_equal(one.controls, two.controls)
+    assert one.sentences == two.sentences and one.cf_sentences == two.cf_sentences

@@ -23,6 +23,7 @@ from vladrivebench.records import NAV_COMMANDS
 IMAGE_HEIGHT, IMAGE_WIDTH = 80, 160
 """The encoder's input size (the kinematic camera's default); other sizes are resized by area averaging."""
 
+LAMP_CHANNELS = 8
 SPECIAL_TOKENS = ("<pad>", "<cot>", "</cot>", "<a>", "</a>", "<plan>")
 WEIGHTS_DIR = Path(__file__).parent / "weights"
 
@@ -73,7 +74,13 @@ class VisionEncoder(nn.Module):
             nn.Conv2d(channels, channels, 3, stride=2, padding=1), nn.GELU(),
             nn.Conv2d(channels, channels, 3, stride=2, padding=1), nn.GELU(),
         )
+        # Per-pixel colour features max-pooled over each grid cell: a lit lamp is one pixel at every
+        # distance on this camera, and a strided convolution mixes it with its dark housing before any
+        # pooling; a 1×1 branch keeps "this cell holds a saturated red/yellow/green pixel" intact.
+        self.lamps = nn.Sequential(nn.Conv2d(3, LAMP_CHANNELS, 1), nn.GELU(),
+                                   nn.Conv2d(LAMP_CHANNELS, LAMP_CHANNELS, 1), nn.GELU())
         self.project = nn.Linear(2 * channels, hidden)
+        self.project_zoom = nn.Linear(2 * channels + LAMP_CHANNELS, hidden)
         self.position = nn.Parameter(torch.zeros(2 * rows * cols, hidden))
         self.ego = nn.Linear(1 + len(NAV_COMMANDS), hidden)
 
@@ -86,17 +93,25 @@ class VisionEncoder(nn.Module):
         the whole view, a 2× zoom on the road ahead (where distant obstacles and lights are a few pixels),
         and the ego token."""
         height, width = images.shape[-2:]
-        ahead = images[:, :, int(0.35 * height) : int(0.75 * height), int(0.25 * width) : int(0.75 * width)]
+        ahead = images[:, :, int(0.3 * height) : int(0.7 * height), int(0.25 * width) : int(0.75 * width)]
         zoomed = F.interpolate(ahead, scale_factor=2.0, mode="nearest")
-        tokens = torch.cat([self._grid(images), self._grid(zoomed)], dim=1) + self.position
+        # Lamp features at the crop's native resolution (a lit lamp is there in every suite scene).
+        lamps = F.adaptive_max_pool2d(self.lamps(ahead), (self.rows, self.cols))
+        whole = self.project(self._cells(self._grid(images)))
+        ahead_tokens = self.project_zoom(self._cells(torch.cat([self._grid(zoomed), lamps], dim=1)))
+        tokens = torch.cat([whole, ahead_tokens], dim=1) + self.position
         return torch.cat([tokens, self.ego(ego).unsqueeze(1)], dim=1)
 
     def _grid(self, images: torch.Tensor) -> torch.Tensor:
+        """``(N, 2·channels, rows, cols)``: mean and max of the convolution features over each grid cell
+        (max pooling keeps small bright things, a distant pedestrian, that averaging dilutes)."""
         features = self.convs(images)
-        # Max pooling keeps small bright things (a lit lamp, a distant pedestrian) that averaging dilutes.
-        grid = torch.cat([F.adaptive_avg_pool2d(features, (self.rows, self.cols)),
+        return torch.cat([F.adaptive_avg_pool2d(features, (self.rows, self.cols)),
                           F.adaptive_max_pool2d(features, (self.rows, self.cols))], dim=1)
-        return self.project(grid.flatten(2).transpose(1, 2))
+
+    @staticmethod
+    def _cells(grid: torch.Tensor) -> torch.Tensor:
+        return grid.flatten(2).transpose(1, 2)
 
 
 def timestep_embedding(t: torch.Tensor, dim: int) -> torch.Tensor:

@@ -21,11 +21,22 @@ import numpy as np
 from vladrivebench.records import CoT, CoTFormat, Observation, Trajectory, TrajectorySpec
 
 from .common import IMAGE_HEIGHT, IMAGE_WIDTH, image_batch
-from .expert import ExpertDriver, counterfactual, cruise_for, rollout_controls, sentence_cot, slot_cot
+from .expert import (
+    ExpertDriver,
+    counterfactual,
+    cruise_for,
+    rollout_controls,
+    sentence_cot,
+    slot_cot,
+    vision_vetoes,
+)
 from .kv_model import rollout
 
 TRAIN_FAMILIES = ("pedestrian", "stopped_car", "traffic_light", "stop_sign", "baseline")
 """Families the models learn from; the intervention routes (E.1, E.2, SAFE.*) are held out for evaluation."""
+FAMILY_WEIGHTS = {"traffic_light": 2, "stopped_car": 3}
+"""How many times a family's scenarios enter the episode rotation: a lit lamp is one pixel and a blocking
+car the one obstacle the safety override must respect, so both get more episodes than their file count."""
 SCENERIES = ("plain", "suburban", "urban")
 SLOW_SPEED = 1.5
 LATE_SHARE = 0.5
@@ -48,6 +59,7 @@ class Dataset:
     waypoints: np.ndarray  # (N, 30, 2)
     cf_sentences: list[str]
     cf_controls: np.ndarray  # (N, 30, 2)
+    cf_vetoed: np.ndarray  # (N,) bool: the counterfactual is a "clear road" CoT that vision overrides
     perception: np.ndarray  # (N, 5) auxiliary targets for the vision encoder (see perception_targets)
     decisions: list[str]
     scenario_ids: list[str]
@@ -62,7 +74,7 @@ class Dataset:
         texts = {k: getattr(self, k) for k in ("commands", "sentences", "slots", "cf_sentences", "decisions",
                                                "scenario_ids")}
         arrays = {k: getattr(self, k) for k in ("images", "speeds", "controls", "sentence_controls",
-                                                "waypoints", "cf_controls", "perception")}
+                                                "waypoints", "cf_controls", "cf_vetoed", "perception")}
         path = Path(path)
         tmp = path.with_name(path.stem + ".partial.npz")
         np.savez(tmp, texts=np.array(json.dumps(texts)), **arrays)
@@ -136,7 +148,8 @@ class ExpertModel:
             "image": obs.image, "speed": obs.ego.speed, "command": obs.command, "sentence": sentence,
             "sentence_controls": sentence_controls,
             "slots": slot_cot(obs, decision, self.rng), "controls": controls,
-            "cf_sentence": cf_text, "cf_controls": cf_controls, "decision": decision.action,
+            "cf_sentence": cf_text, "cf_controls": cf_controls, "cf_vetoed": vision_vetoes(obs, decision),
+            "decision": decision.action,
             "scenario_id": obs.scenario_id, "perception": perception_targets(obs, decision),
         }
         self.record(sample)
@@ -158,7 +171,7 @@ class ExpertModel:
 
 PERCEIVED_KINDS = ("none", "pedestrian", "car", "animal", "traffic_light", "stop_sign")
 PERCEIVED_LIGHTS = ("none", "red", "yellow", "green")
-PERCEPTION_RANGE = 60.0
+PERCEPTION_RANGE = 100.0
 
 
 def perception_targets(obs: Observation, decision) -> np.ndarray:
@@ -183,8 +196,10 @@ def variant(scenario, rng: np.random.Generator):
         changes = {"s": max(15.0, actor.s + float(rng.uniform(-15.0, 15.0)))}
         if actor.motion == "static" and actor.kind in ("pedestrian", "animal"):
             changes["offset"] = float(rng.choice([actor.offset, rng.uniform(-1.2, 1.2), rng.uniform(1.8, 3.0)]))
-        if actor.motion == "static" and actor.kind == "car" and abs(actor.offset) < 1.0:
-            changes["offset"] = actor.offset + float(rng.uniform(-0.4, 0.4))
+        if actor.motion == "static" and actor.kind == "car":
+            # In the ego lane or in the next one, on either stopped-car road: "blocking" is then a matter of
+            # where the car is in the image, not of which road or scenery it stands on.
+            changes["offset"] = float(rng.choice([actor.offset, rng.uniform(-0.4, 0.4), rng.uniform(3.0, 3.8)]))
         if actor.trigger_distance is not None:
             changes["trigger_distance"] = max(5.0, actor.trigger_distance + float(rng.uniform(-5.0, 5.0)))
         actors.append(dataclasses.replace(actor, **changes))
@@ -196,45 +211,71 @@ def variant(scenario, rng: np.random.Generator):
 
 
 def generate(seed: int, episodes: int, every: int = 2, scenarios: Iterable | None = None,
-             progress: Callable[[str], None] | None = None, max_time_s: float = 22.0) -> Dataset:
-    """Drive ``episodes`` randomised episodes with the expert and keep every ``every``-th step."""
+             progress: Callable[[str], None] | None = None, max_time_s: float = 22.0,
+             workers: int = 1) -> Dataset:
+    """Drive ``episodes`` randomised episodes with the expert and keep every ``every``-th step.
+
+    Episode ``i`` draws everything from its own stream ``(seed, i)``, so the dataset is the same whatever
+    the number of ``workers`` (processes that each drive a share of the episodes)."""
+    base = list(scenarios) if scenarios is not None else _training_scenarios()
+    if not base:
+        raise RuntimeError("no scenarios to train on: the scenario suite is empty")
+    jobs = [(seed, episode, base[episode % len(base)], every, max_time_s) for episode in range(episodes)]
+    rows: list[dict] = []
+    started = time.perf_counter()
+    for done, kept in enumerate(_drive_all(jobs, workers), start=1):
+        rows.extend(kept)
+        if progress and done % 10 == 0:
+            progress(f"  {done}/{episodes} episodes, {len(rows)} samples, {time.perf_counter() - started:.0f} s")
+    return _to_dataset(rows)
+
+
+def _training_scenarios() -> list:
+    from vladrivebench.scenarios import load_suite
+
+    return [s for s in load_suite().values() if s.family in TRAIN_FAMILIES
+            for _ in range(FAMILY_WEIGHTS.get(s.family, 1))]
+
+
+def _drive_all(jobs: list[tuple], workers: int) -> Iterable[list[dict]]:
+    """Each job's kept samples, in job order."""
+    if workers <= 1:
+        yield from map(_drive_episode, jobs)
+        return
+    import multiprocessing
+
+    with multiprocessing.get_context("spawn").Pool(workers) as pool:
+        yield from pool.imap(_drive_episode, jobs, chunksize=2)
+
+
+_SIMULATOR = None
+
+
+def _drive_episode(job: tuple) -> list[dict]:
+    """One expert episode of a randomised variant; returns the samples kept."""
     from vladrivebench.controllers import MPCController, PIDController
     from vladrivebench.plugins import get_registry
     from vladrivebench.runner import EpisodeFailure, run_episode
-    from vladrivebench.scenarios import load_suite
 
-    rng = np.random.default_rng([seed, 0xDA7A])
-    base = list(scenarios) if scenarios is not None else [
-        s for s in load_suite().values() if s.family in TRAIN_FAMILIES]
-    if not base:
-        raise RuntimeError("no scenarios to train on: the scenario suite is empty")
-    simulator = get_registry().create("simulator", "kinematic", {"width": IMAGE_WIDTH, "height": IMAGE_HEIGHT})
-    rows: list[dict] = []
-    started = time.perf_counter()
-    for episode in range(episodes):
-        scenario = variant(base[episode % len(base)], rng)
-        scenario = dataclasses.replace(scenario, max_time_s=min(scenario.max_time_s, max_time_s))
-        kept: list[dict] = []
-        offset = int(rng.integers(every))
-
-        def record(sample: dict, kept=kept) -> None:
-            kept.append(sample)
-
-        late = float(rng.uniform(2.0, 25.0)) if rng.random() < LATE_SHARE else None
-        expert = ExpertModel(rng, float(rng.uniform(5.5, 9.5)), record, late_reaction=late)
-        controller = MPCController() if episode % 2 else PIDController()
-        try:
-            run_episode(expert, simulator, controller, scenario, int(rng.integers(1 << 30)))
-        except EpisodeFailure as failure:
-            if not isinstance(failure.__cause__, EnoughWaiting):
-                raise
-        # Every step near standstill is kept: starting up (or not) from rest is rare but decisive.
-        rows.extend(k for i, k in enumerate(kept) if i % every == offset or k["speed"] < SLOW_SPEED)
-        if progress and (episode + 1) % 10 == 0:
-            progress(f"  {episode + 1}/{episodes} episodes, {len(rows)} samples, "
-                     f"{time.perf_counter() - started:.0f} s")
-    simulator.close()
-    return _to_dataset(rows)
+    global _SIMULATOR
+    seed, episode, scenario, every, max_time_s = job
+    if _SIMULATOR is None:  # one simulator per process, reused across its episodes
+        _SIMULATOR = get_registry().create("simulator", "kinematic", {"width": IMAGE_WIDTH, "height": IMAGE_HEIGHT})
+    rng = np.random.default_rng([seed, 0xDA7A, episode])
+    scenario = variant(scenario, rng)
+    scenario = dataclasses.replace(scenario, max_time_s=min(scenario.max_time_s, max_time_s))
+    kept: list[dict] = []
+    offset = int(rng.integers(every))
+    late = float(rng.uniform(2.0, 25.0)) if rng.random() < LATE_SHARE else None
+    expert = ExpertModel(rng, float(rng.uniform(5.5, 9.5)), kept.append, late_reaction=late)
+    controller = MPCController() if episode % 2 else PIDController()
+    try:
+        run_episode(expert, _SIMULATOR, controller, scenario, int(rng.integers(1 << 30)))
+    except EpisodeFailure as failure:
+        if not isinstance(failure.__cause__, EnoughWaiting):
+            raise
+    # Every step near standstill is kept: starting up (or not) from rest is rare but decisive.
+    return [k for i, k in enumerate(kept) if i % every == offset or k["speed"] < SLOW_SPEED]
 
 
 def _encoder_sized(image: np.ndarray) -> np.ndarray:
@@ -257,6 +298,7 @@ def _to_dataset(rows: list[dict]) -> Dataset:
         sentence_controls=np.stack([r["sentence_controls"] for r in rows]),
         waypoints=waypoints, cf_sentences=[r["cf_sentence"] for r in rows],
         cf_controls=np.stack([r["cf_controls"] for r in rows]), decisions=[r["decision"] for r in rows],
+        cf_vetoed=np.array([r["cf_vetoed"] for r in rows], dtype=bool),
         perception=np.stack([r["perception"] for r in rows]),
         scenario_ids=[r["scenario_id"] for r in rows],
     )

@@ -2,7 +2,7 @@
 a rule-based decision, a planned 3 s rollout, and template CoTs with paraphrase variety in both formats.
 
 Decision rules: stop for a blocking pedestrian, car or animal within 40 m and for a red (or stoppable
-yellow) light; stop at a stop sign, then proceed; otherwise cruise. The plan is a unicycle rollout at
+yellow) light within 100 m; stop at a stop sign, then proceed; otherwise cruise. The plan is a unicycle rollout at
 10 Hz: the speed follows ``min(cruise, sqrt(2·b·distance-to-stop-point))``, the curvature comes from
 pure pursuit on the route centre line (``GroundTruth.route_ahead``).
 
@@ -29,8 +29,17 @@ MAX_ACCEL = 1.5
 OBSTACLE_MARGIN = 3.0  # stop the front bumper this far before an obstacle (distances are bumper-based)
 LINE_MARGIN = 1.0  # … and this far before a stop line
 REACT_DISTANCE = 40.0
+SIGHT_DISTANCE = REACT_DISTANCE + 20  # road users and signs farther than this are not talked about
+LIGHT_SIGHT_DISTANCE = 100.0
+"""A lit lamp is one pixel at any distance on the 80×160 camera, so how far a light is hardly shows: the
+expert names a light's colour, and stops for red, from as far as the suite's approaches (braking gently)."""
+APPROACH_SPEED = 3.0  # m/s: how a "stop" CoT approaches a stop point that is still far ahead
+APPROACH_MIN_ROOM = 15.0  # m: … farther than this
 SPEED_TIME_CONSTANT = 0.25  # s: how fast the planned speed follows its target
-SALIENCE_THRESHOLD = 0.012
+SALIENCE_THRESHOLD = 0.01
+"""A car (2.7 m² of front) vetoes a "clear road" CoT from ~16 m, when braking still stops it in time; a
+pedestrian (~1 m²) only from ~10 m, when from cruise speed not even full braking stops before it."""
+DENIAL_SHARE = 0.3
 ACCEL_BONUS = 0.5  # m/s above cruise when the CoT says "accelerate": what the expert says, it does
 OBSTACLE_KINDS = ("pedestrian", "car", "animal")
 
@@ -60,7 +69,7 @@ class ExpertDriver:
         gt, speed = obs.ground_truth, obs.ego.speed
         critical = gt.critical()
         distance = gt.distance_to_critical
-        if critical is None or distance is None or distance > REACT_DISTANCE + 20:
+        if critical is None or distance is None or distance > sight_distance(critical.kind):
             return Decision("go", "clear")
         kind = critical.kind
         if kind in OBSTACLE_KINDS:
@@ -70,11 +79,11 @@ class ExpertDriver:
         if kind == "traffic_light":
             colour = gt.light_state or critical.state
             stop_at = distance - LINE_MARGIN
-            if colour in ("red", "yellow") and stop_at > -0.5 and distance <= REACT_DISTANCE + 10:
+            if colour in ("red", "yellow") and stop_at > -0.5:
                 if colour == "yellow" and speed * speed / (2 * MAX_DECEL * 0.6) > stop_at > 0:
                     return Decision("go", "yellow_committed", kind)
                 return Decision("stop", colour, kind, stop_at)
-            return Decision("go", "green" if distance > 0 else "passed", kind)
+            return Decision("go", "green" if colour == "green" and distance > 0 else "passed", kind)
         if kind == "stop_sign":
             stop_at = distance - LINE_MARGIN
             if critical.actor_id in self.stopped_at_sign or stop_at < -1.0:
@@ -88,6 +97,11 @@ class ExpertDriver:
     def plan(self, obs: Observation, decision: Decision) -> np.ndarray:
         """``(30, 2)`` acceleration (m/s²) and curvature (1/m) for ``decision`` from the current state."""
         return rollout_controls(obs.ego.speed, obs.ground_truth, decision.stop_distance, self.cruise_speed)
+
+
+def sight_distance(kind: str) -> float:
+    """How far ahead the expert talks about (and reacts to) a critical object of ``kind``."""
+    return LIGHT_SIGHT_DISTANCE if kind == "traffic_light" else SIGHT_DISTANCE
 
 
 def rollout_controls(speed: float, gt: GroundTruth, stop_distance: float | None, cruise: float,
@@ -109,8 +123,8 @@ def rollout_controls(speed: float, gt: GroundTruth, stop_distance: float | None,
             if room <= 0.05:
                 target = 0.0
         accel = (target - v) / SPEED_TIME_CONSTANT
-        if brake_now and stop_distance is not None and v > 0.0:
-            accel = min(accel, -v * v / (2.0 * max(stop_distance - travelled, 0.1)))
+        if brake_now and stop_distance is not None:
+            accel = min(accel, _committed_accel(v, stop_distance - travelled))
         accel = float(np.clip(accel, -MAX_DECEL, MAX_ACCEL))
         if v <= 0.0 and target <= 0.0:
             accel = 0.0
@@ -124,6 +138,16 @@ def rollout_controls(speed: float, gt: GroundTruth, stop_distance: float | None,
         travelled += ds
         v = v_next
     return out
+
+
+def _committed_accel(speed: float, room: float) -> float:
+    """The most a CoT that says "stop" lets the car accelerate: decelerate at least uniformly to the stop
+    point — except that a stop point still far ahead (a red light seen from 100 m) is approached at a
+    walking pace rather than waited for where the car stands."""
+    creep = APPROACH_SPEED if room > APPROACH_MIN_ROOM else 0.0
+    if speed > creep:
+        return -speed * speed / (2.0 * max(room, 0.1))
+    return (creep - speed) / SPEED_TIME_CONSTANT
 
 
 def pursuit_curvature(route: np.ndarray, x: float, y: float, heading: float, lookahead: float) -> float:
@@ -150,6 +174,12 @@ def salience(obs: Observation) -> float:
     return critical.width * critical.height / (distance * distance)
 
 
+def vision_vetoes(obs: Observation, decision: Decision) -> bool:
+    """Whether a "road is clear" CoT is overridden by what the camera shows: the expert stops for a
+    road user that is visually salient (:data:`SALIENCE_THRESHOLD`)."""
+    return decision.action == "stop" and salience(obs) >= SALIENCE_THRESHOLD
+
+
 def cruise_for(sentence: str, cruise: float) -> float:
     """The cruise speed a sentence commits to: a little faster when it states acceleration."""
     lowered = sentence.lower()
@@ -162,7 +192,12 @@ def counterfactual(obs: Observation, decision: Decision, cruise: float, rng: np.
     gt, speed = obs.ground_truth, obs.ego.speed
     if decision.action == "stop":
         sentence = pick(rng, GO_CLEAR)
-        if salience(obs) >= SALIENCE_THRESHOLD:  # a salient obstacle: the "clear road" CoT is overridden
+        # Some counterfactuals deny the reason instead ("… is not blocking the lane", "… is green"), so the
+        # vision veto holds for any "go" text, not only for the one the safety override injects.
+        denial = GO_REASON.get("green" if decision.kind == "traffic_light" else f"not_blocking_{decision.kind}")
+        if denial and rng.random() < DENIAL_SHARE:
+            sentence = pick(rng, denial)
+        if vision_vetoes(obs, decision):  # a salient obstacle: the "clear road" CoT is overridden
             return "go", sentence, rollout_controls(speed, gt, decision.stop_distance, cruise, brake_now=True)
         return "go", sentence, rollout_controls(speed, gt, None, cruise_for(sentence, cruise))
     kind = str(rng.choice(["pedestrian", "car", "animal", "red_light", "stop_sign"]))
@@ -217,7 +252,7 @@ WAIT_SENTENCES = {
     "car": ["Remain stopped behind the stationary car that is blocking the lane.",
             "Stay stopped because the car ahead is still blocking the lane."],
     "animal": ["Remain stopped because the animal is still blocking the lane."],
-    "red_light": ["Remain stopped at the red traffic light.", "Stay stopped until the traffic light turns green."],
+    "red_light": ["Remain stopped at the red traffic light.", "Stay stopped while the traffic light is red."],
     "yellow_light": ["Remain stopped at the traffic light."],
     "stop_sign": ["Remain stopped at the stop sign."],
 }
@@ -300,7 +335,7 @@ def objects_answer(obs: Observation, decision: Decision, rng: np.random.Generato
     gt = obs.ground_truth
     critical = gt.critical()
     distance = gt.distance_to_critical
-    if critical is None or distance is None or distance < 0 or distance > REACT_DISTANCE + 20:
+    if critical is None or distance is None or distance < 0 or distance > sight_distance(critical.kind):
         return pick(rng, ["There are no critical objects ahead.", "No objects affect the ego vehicle."])
     forward, left = obs.ego.to_ego_frame(critical.x, critical.y)
     where = f"<{-left:.2f}, {forward:.2f}>"

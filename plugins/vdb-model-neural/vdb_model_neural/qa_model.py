@@ -2,6 +2,14 @@
 appended to the context after the vision tokens, then a planning token whose final hidden state feeds a
 planner that outputs waypoints over 3 s.
 
+The planner reads the planning token's hidden state together with a compact read-out of the vision
+tokens (computed before any text, so no text reaches the planner through it): a three-layer decoder of
+width 64 does not route enough of the scene into one token for the planner to stop on vision alone, and
+the recipe asks for a planner that relies on vision. Text still reaches the plan through the planning
+token — which is what the intervention measures. It predicts acceleration and curvature per step and
+rolls them out from the current speed into waypoints (the same unicycle rollout as ``kv``): a small
+planner that predicts positions directly drifts sideways when it hedges between stopping and going.
+
 Each round feeds its question (one prefill pass, identical for generation and splicing) and then the
 answer between ``<a>`` and ``</a>``; splicing replaces the answers (intercepting the rounds, as the paper
 did for ORION). The planner reads only the planning token's hidden state, so :meth:`QAModel.state_digest`
@@ -27,15 +35,15 @@ from .common import (
     ego_features,
     image_batch,
 )
-from .kv_model import _observation_key
+from .kv_model import _observation_key, controls_to_trajectory
 
 SLOTS = ("scene", "objects", "decision")
+VISION_READOUT = 8  # features per vision token the planner reads
 QUESTIONS = {
     "scene": "Q: Describe the driving scene.",
     "objects": "Q: Which objects matter, and where are they?",
     "decision": "Q: What should the ego vehicle do?",
 }
-STEP_SCALE = 0.5  # metres per unit of the planner's per-step output
 
 
 class QANetwork(nn.Module):
@@ -49,26 +57,31 @@ class QANetwork(nn.Module):
         self.encoder = VisionEncoder(config.hidden)
         self.lm = LlamaForCausalLM(config.llama_config())
         width = config.head_width * 4
+        self.plan_norm = nn.LayerNorm(config.hidden)
+        self.vision_readout = nn.Linear(config.hidden, VISION_READOUT)
         self.planner = nn.Sequential(
-            nn.LayerNorm(config.hidden), nn.Linear(config.hidden, width), nn.GELU(),
+            nn.Linear(config.hidden + self.encoder.n_tokens * VISION_READOUT, width), nn.GELU(),
             nn.Linear(width, width), nn.GELU(), nn.Linear(width, config.horizon_steps * 2),
         )
 
     def prefix_embeddings(self, images: torch.Tensor, ego: torch.Tensor) -> torch.Tensor:
         return self.encoder(images, ego)
 
-    def plan(self, hidden: torch.Tensor) -> torch.Tensor:
-        """Planning-token hidden states ``(B, hidden)`` → ego-frame waypoints ``(B, T, 2)`` in metres."""
-        steps = self.planner(hidden).reshape(hidden.shape[0], self.config.horizon_steps, 2)
-        return torch.cumsum(steps * STEP_SCALE, dim=1)
+    def plan(self, hidden: torch.Tensor, vision: torch.Tensor) -> torch.Tensor:
+        """Planning-token hidden states ``(B, hidden)`` and vision tokens ``(B, n, hidden)`` → normalised
+        controls ``(B, T, 2)`` (acceleration, curvature; ``controls_to_trajectory`` makes them waypoints)."""
+        features = torch.cat([self.plan_norm(hidden), self.vision_readout(vision).flatten(1)], dim=-1)
+        return self.planner(features).reshape(hidden.shape[0], self.config.horizon_steps, 2)
 
 
 @dataclass
 class QAState:
-    """What a ``qa`` CoT carries: the decoder state after the planning token and each slot's token ids."""
+    """What a ``qa`` CoT carries: the decoder state after the planning token, each slot's token ids and
+    the observation's vision tokens (the planner's second input)."""
 
     decoder: toolkit.DecoderState
     token_ids: dict[str, tuple[int, ...]]
+    vision: torch.Tensor
 
 
 class QAModel(BundledModel):
@@ -87,6 +100,7 @@ class QAModel(BundledModel):
         self.trajectory_spec = TrajectorySpec(self.config.horizon_steps / self.config.rate_hz, self.config.rate_hz)
         self._prefix_key: tuple | None = None
         self._prefix: toolkit.DecoderState | None = None
+        self._vision: torch.Tensor | None = None
 
     # -- protocol ------------------------------------------------------------------------------------
     def reset(self, seed: int) -> None:
@@ -103,7 +117,7 @@ class QAModel(BundledModel):
                                                              self.config.max_cot_tokens, banned=self.codec.special_ids)
             slots[slot], token_ids[slot] = self.codec.decode(tokens), tuple(tokens)
         state = toolkit.feed_token(lm, state, ids["<plan>"])
-        return CoT(text=CoT.join_slots(slots), slots=slots, state=QAState(state, token_ids))
+        return CoT(text=CoT.join_slots(slots), slots=slots, state=QAState(state, token_ids, self._vision))
 
     def splice_cot(self, obs: Observation, text: str | dict[str, str], rng: np.random.Generator) -> CoT:
         """Replace the three answers with ``text`` (slot → text), then the planning token."""
@@ -127,21 +141,21 @@ class QAModel(BundledModel):
             token_ids[slot] = tuple(tokens)
         state = toolkit.feed_token(lm, state, ids["<plan>"])
         slots = {slot: text[slot] for slot in SLOTS}
-        return CoT(text=CoT.join_slots(slots), slots=slots, state=QAState(state, token_ids), spliced=True)
+        return CoT(text=CoT.join_slots(slots), slots=slots, state=QAState(state, token_ids, self._vision),
+                   spliced=True)
 
     def decode_action(self, obs: Observation, cot: CoT, rng: np.random.Generator) -> Trajectory:
         """Waypoints from the planning token's hidden state (deterministic: ``rng`` is not used)."""
         state = self._state_of(obs, cot)
         with torch.no_grad():
-            xy = self.network.plan(state.decoder.last_hidden)[0].numpy().astype(np.float64)
-        times = np.arange(1, self.config.horizon_steps + 1) / self.config.rate_hz
-        return Trajectory(times=times, xy=xy)
+            controls = self.network.plan(state.decoder.last_hidden, state.vision)[0].numpy().astype(np.float64)
+        return controls_to_trajectory(controls, obs.ego.speed, 1.0 / self.config.rate_hz)
 
     def state_digest(self, cot: CoT) -> str:
-        """SHA-256 of the cache and of the planning token's hidden state (the planner's input)."""
+        """SHA-256 of the cache and of the planner's inputs (planning token's hidden state, vision tokens)."""
         if not isinstance(cot.state, QAState):
             raise ConfigError("this CoT was not produced by model 'qa' (no decoder state to digest)")
-        return toolkit.kv_digest(cot.state.decoder, extra=[cot.state.decoder.last_hidden])
+        return toolkit.kv_digest(cot.state.decoder, extra=[cot.state.decoder.last_hidden, cot.state.vision])
 
     # -- extras --------------------------------------------------------------------------------------
     def count_tokens(self, text: str) -> int:
@@ -154,6 +168,7 @@ class QAModel(BundledModel):
             embeds = self.network.prefix_embeddings(image_batch([obs.image]),
                                                     ego_features([obs.ego.speed], [obs.command]))
             self._prefix = toolkit.encode_prefix(self.network.lm, embeds)
+            self._vision = embeds
             self._prefix_key = key
         return toolkit.fork(self._prefix)
 

@@ -1,6 +1,6 @@
 """Regenerate the result tables of this plugin's README with ``vdb`` commands (nothing is typed by hand).
 
-    python -m vdb_model_neural.results --out runs/neural [--quick]
+    python -m vdb_model_neural.results --out runs/neural [--quick] [--only kv-open-loop,suite]
 
 Each experiment is one ``vdb`` command (printed before it runs); its stdout is pasted verbatim into the
 README between ``<!-- results:NAME -->`` and ``<!-- /results:NAME -->``. Output directories are resumed,
@@ -19,6 +19,9 @@ from pathlib import Path
 
 README = Path(__file__).resolve().parent.parent / "README.md"
 OL_CONDITIONS = "selfsplice,accel,pedestrian,car"
+DRIVING_SCENARIOS = "C.1,C.2,TL.1-red,TL.2-red,TL.3-red,TL.1-green"
+"""Do the models stop for the blocking car and the red lights (and not for the car beside the lane or a
+green light)?"""
 QA_CONDITIONS = "selfsplice,accel,pedestrian,red-light,origbrake,origbrake-shuffle,depicts-all,depicts-50"
 
 
@@ -44,6 +47,11 @@ def experiments(seeds: dict[str, int]) -> list[tuple[str, list[list[str]]]]:
             ["intervene", "--model", "kv", "--controller", "mpc", "--route", route, "--mode", "safety",
              "--seeds", str(safety), "--out", f"{{out}}/kv-safety-{route.split('.')[1]}"]
             for route in ("SAFE.kerb-ped", "SAFE.centre-ped", "SAFE.car")
+        ]),
+        ("driving", [
+            ["run", "--model", model, "--controller", controller, "--scenarios", DRIVING_SCENARIOS,
+             "--seeds", str(seeds["driving"]), "--out", f"{{out}}/driving/{model}", "--quiet"]
+            for model, controller in (("kv", "mpc"), ("qa", "pid"))
         ]),
         ("suite", [
             ["run", "--model", model, "--controller", controller, "--scenarios", "all", "--seeds", str(suite),
@@ -87,17 +95,26 @@ def fill(readme: str, name: str, body: str) -> str:
     return pattern.sub(lambda m: m.group(1) + body + "\n" + m.group(2), readme)
 
 
+def update_readme(name: str, body: str) -> None:
+    """Replace one section, under a lock: several ``--only`` runs may regenerate sections side by side."""
+    import fcntl
+
+    with open(README.with_name(".results.lock"), "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        README.write_text(fill(README.read_text(), name, body))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, required=True)
     parser.add_argument("--only", help="Comma-separated sections to regenerate (default: all).")
     parser.add_argument("--quick", action="store_true", help="Fewer seeds (a smoke run; tables are noisier).")
     args = parser.parse_args()
-    seeds = ({"open": 3, "qa_open": 2, "closed": 3, "safety": 2, "suite": 1} if args.quick
-             else {"open": 7, "qa_open": 3, "closed": 5, "safety": 4, "suite": 1})
+    seeds = ({"open": 3, "qa_open": 2, "closed": 3, "safety": 2, "driving": 2, "suite": 1} if args.quick
+             else {"open": 7, "qa_open": 3, "closed": 5, "safety": 4, "driving": 5, "suite": 1})
     only = set(args.only.split(",")) if args.only else None
     if not only or "training" in only:
-        README.write_text(fill(README.read_text(), "training", training_table()))
+        update_readme("training", training_table())
     for name, commands in experiments(seeds):
         if only and name not in only:
             continue
@@ -107,8 +124,7 @@ def main() -> None:
             text = run_vdb(argv)
             shown = " ".join(a.replace(str(args.out), "OUT") for a in argv)
             outputs.append(f"$ vdb {shown}\n{text.replace(str(args.out), 'OUT')}")
-        body = "```text\n" + "\n\n".join(outputs) + "\n```"
-        README.write_text(fill(README.read_text(), name, body))
+        update_readme(name, "```text\n" + "\n\n".join(outputs) + "\n```")
         print(f"README section {name} updated", file=sys.stderr)
 
 

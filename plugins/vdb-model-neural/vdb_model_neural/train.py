@@ -7,7 +7,7 @@
    * ``kv``: next-token loss on the expert's sentence + flow-matching loss on the expert's controls, and on a
      share of rows the sentence is replaced by a *counterfactual* (opposite decision) whose target follows
      it (no next-token loss there) — so the action depends on the CoT (Alpamayo-like coupling);
-   * ``qa``: next-token loss on the three answers + planner loss on the waypoints, and on a share of rows
+   * ``qa``: next-token loss on the three answers + planner loss on the expert's controls, and on a share of rows
      the answers are swapped with another sample's (coherent but wrong) while the planner target stays the
      true one — so the planner relies on vision and not on what the CoT says (ORION-like).
 4. Weights (safetensors), config and tokenizer are written to ``weights/`` (or ``--out``).
@@ -24,8 +24,8 @@ from pathlib import Path
 import click
 
 DEFAULTS = {
-    "kv": {"steps": 2400, "batch": 48, "lr": 2e-3, "counterfactual_share": 0.4, "vocab": 640},
-    "qa": {"steps": 2000, "batch": 24, "lr": 2e-3, "mismatch_share": 0.5, "vocab": 768},
+    "kv": {"steps": 4000, "batch": 48, "lr": 2e-3, "counterfactual_share": 0.4, "veto_share": 0.8, "vocab": 640},
+    "qa": {"steps": 3000, "batch": 24, "lr": 2e-3, "mismatch_share": 0.5, "plan_weight": 5.0, "vocab": 768},
 }
 
 
@@ -74,7 +74,10 @@ def train_kv(dataset, seed: int, steps: int | None = None, threads: int = 2, log
     started = time.perf_counter()
     for step in range(settings["steps"]):
         rows = rng.integers(0, len(dataset), settings["batch"])
-        counterfactual = rng.random(len(rows)) < settings["counterfactual_share"]
+        # Rows where vision overrides a "clear road" CoT get it more often: the veto is what the model must
+        # not unlearn against the many rows where a counterfactual is obeyed.
+        share = np.where(dataset.cf_vetoed[rows], settings["veto_share"], settings["counterfactual_share"])
+        counterfactual = rng.random(len(rows)) < share
         seqs = [cf_ids[r] if c else true_ids[r] for r, c in zip(rows, counterfactual, strict=True)]
         token_ids, real = _pad(seqs, ids["<pad>"])
         images = torch.from_numpy(dataset.images[rows]).permute(0, 3, 1, 2).float() / 255.0
@@ -110,6 +113,7 @@ def train_qa(dataset, seed: int, steps: int | None = None, threads: int = 2, log
     from torch.nn import functional as F
 
     from .common import ModelConfig, TextCodec, configure_torch, ego_features
+    from .kv_model import normalise_controls
     from .qa_model import QUESTIONS, SLOTS, QANetwork
 
     settings = dict(DEFAULTS["qa"], steps=steps or DEFAULTS["qa"]["steps"], batch=batch or DEFAULTS["qa"]["batch"])
@@ -124,7 +128,7 @@ def train_qa(dataset, seed: int, steps: int | None = None, threads: int = 2, log
     ids = codec.ids
     questions = {slot: codec.encode(QUESTIONS[slot]) for slot in SLOTS}
     answers = [{slot: codec.encode(s[slot]) for slot in SLOTS} for s in dataset.slots]
-    waypoints = torch.tensor(dataset.waypoints, dtype=torch.float32)
+    targets = torch.tensor(normalise_controls(dataset.controls), dtype=torch.float32)
     ego = ego_features(dataset.speeds, dataset.commands)
     perception = torch.tensor(dataset.perception, dtype=torch.float32)
     probe = _perception_probe(network)
@@ -160,9 +164,9 @@ def train_qa(dataset, seed: int, steps: int | None = None, threads: int = 2, log
         lm_loss = F.cross_entropy(logits[lm_mask], token_ids[lm_mask])
         plan_pos = p + real.sum(dim=1) - 1
         hidden = out.hidden_states[-1][torch.arange(len(rows)), plan_pos]
-        plan_loss = F.smooth_l1_loss(network.plan(hidden), waypoints[rows])
+        plan_loss = F.smooth_l1_loss(network.plan(hidden, prefix), targets[rows])
         aux_loss = _perception_loss(probe, prefix, perception[rows])
-        loss = lm_loss + plan_loss + aux_loss
+        loss = lm_loss + settings["plan_weight"] * plan_loss + aux_loss
         _update(optimiser, params, loss, _schedule(step, settings["steps"], settings["lr"]))
         if step % 200 == 0 or step == settings["steps"] - 1:
             log(f"  qa step {step:5d}  lm {lm_loss.item():.3f}  plan {plan_loss.item():.3f}  "
@@ -241,7 +245,7 @@ def run(models: list[str], seed: int, episodes: int, steps: int | None, out: Pat
         _log(f"data: {len(dataset)} samples read from {data_cache}")
     else:
         _log(f"generating data: {episodes} expert episodes (seed {seed})")
-        dataset = generate(seed, episodes, progress=_log)
+        dataset = generate(seed, episodes, progress=_log, workers=threads)
         if data_cache is not None:
             dataset.save(data_cache)
     times["data"] = time.perf_counter() - started
@@ -261,12 +265,13 @@ def run(models: list[str], seed: int, episodes: int, steps: int | None, out: Pat
 @click.command("train-neural")
 @click.option("--model", "model", type=click.Choice(["kv", "qa", "both"]), default="both", show_default=True)
 @click.option("--seed", type=int, default=0, show_default=True)
-@click.option("--episodes", type=click.IntRange(1), default=140, show_default=True,
+@click.option("--episodes", type=click.IntRange(1), default=360, show_default=True,
               help="Expert episodes of randomised scenario variants to learn from.")
 @click.option("--steps", type=click.IntRange(1), default=None, help="Optimiser steps (default per model).")
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Where to write the bundles (default: the plugin's weights/ folder).")
-@click.option("--threads", type=click.IntRange(1), default=2, show_default=True)
+@click.option("--threads", type=click.IntRange(1), default=2, show_default=True,
+              help="Torch threads, and processes driving the expert episodes.")
 @click.option("--data-cache", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="An .npz to read the expert data from, or to write it to (generated from --seed).")
 def train_command(model: str, seed: int, episodes: int, steps: int | None, out: Path | None, threads: int,
