@@ -270,15 +270,18 @@ class EpisodeWriter:
         self.finished = False
 
     def __enter__(self) -> EpisodeWriter:
-        from mcap.writer import CompressionType, Writer
+        from mcap.writer import CompressionType, IndexType, Writer
 
         from . import __version__
 
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._file = open(self.partial_path, "wb")  # noqa: SIM115 - closed in finish/__exit__
         _lock(self._file)  # held until closed: tells a resumed sweep this partial is still being written
+        # No message-index records: they are the only MCAP records without a CRC, so a flipped byte in one
+        # would go unnoticed; the reader reads chunks in order and needs no per-message index.
         self._writer = Writer(self._file, chunk_size=self.chunk_size, compression=CompressionType.ZSTD,
-                              enable_data_crcs=True)
+                              enable_data_crcs=True,
+                              index_types=IndexType.ATTACHMENT | IndexType.CHUNK | IndexType.METADATA)
         self._writer.start(profile=PROFILE, library=f"vladrivebench/{__version__}")
         topics = STEP_CHANNELS + ((CAMERA_CHANNEL,) if self.log_images else ())
         for topic in topics:
@@ -399,7 +402,7 @@ def read_episode(path: Path | str, *, recover: bool = False) -> Episode:
     ``recover=True`` a truncated file (e.g. a ``.partial`` left by a killed run) yields its complete
     steps, ``result=None`` and ``complete=False``.
     """
-    from mcap.records import Channel, Footer, Message, Metadata
+    from mcap.records import Channel, DataEnd, Footer, Message, Metadata
     from mcap.stream_reader import StreamReader
 
     path = Path(path)
@@ -413,7 +416,7 @@ def read_episode(path: Path | str, *, recover: bool = False) -> Episode:
     by_step: dict[int, dict[str, Any]] = {}
     meta: dict | None = None
     result: dict | None = None
-    complete = False
+    complete = data_end = False
     try:
         for record in StreamReader(io.BytesIO(data), validate_crcs=True).records:
             if isinstance(record, Channel):
@@ -425,7 +428,11 @@ def read_episode(path: Path | str, *, recover: bool = False) -> Episode:
                     meta = _episode_meta(path, record.metadata)
                 elif record.name == "result":
                     result = json.loads(record.metadata["json"])
+            elif isinstance(record, DataEnd):
+                data_end = True
             elif isinstance(record, Footer):
+                if not data_end:  # a damaged DataEnd opcode reads as an unknown record and would be skipped
+                    raise ValueError("no data-end record before the footer")
                 _check_summary_crc(data, record)
         complete = True
     except LogError:
