@@ -135,7 +135,7 @@ class ExpertModel:
 
     def _sample(self, obs: Observation, decision) -> CoT:
         controls = self.driver.plan(obs, decision)
-        cf_action, cf_text, cf_controls = counterfactual(obs, decision, self.driver.cruise_speed, self.rng)
+        _, cf_text, cf_controls = counterfactual(obs, decision, self.driver.cruise_speed, self.rng)
         sentence = sentence_cot(decision, obs.ego.speed, self.rng)
         # The plan the sentence commits to (the kv target): "accelerate" → a little faster; "stop" → brake now.
         if decision.action == "go":
