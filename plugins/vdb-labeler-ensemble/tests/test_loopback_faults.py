@@ -285,10 +285,17 @@ def test_an_interrupt_stops_waiting_workers_and_keeps_what_arrived(loopback, tmp
     labeler = EnsembleLabeler(backend_specs(server), cache=cache, environ=ENVIRON, max_retry_after=600,
                               progress_stream=io.StringIO())  # real sleeps: the Retry-After would take 2 min
     timer = threading.Timer(0.5, os.kill, (os.getpid(), signal.SIGINT))  # as Ctrl-C does
+    # Python's own handler, re-registered with the OS: a library loaded by an earlier test (Ray's core
+    # worker) can take SIGINT over below Python, and the interrupt then never reached this test (it hung).
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
     started = time.monotonic()
-    timer.start()
-    with pytest.raises(KeyboardInterrupt):
-        labeler.label_batch([item("wait")])
+    try:
+        timer.start()
+        with pytest.raises(KeyboardInterrupt):
+            labeler.label_batch([item("wait")])
+    finally:
+        timer.cancel()
+        signal.signal(signal.SIGINT, previous)
     assert time.monotonic() - started < 10
     assert len(labeler.cache) == 2  # anthropic's and gemini's replies were kept
     labeler.close()

@@ -68,3 +68,20 @@ def test_the_models_keep_going_for_a_green_light_and_a_car_beside_the_lane(model
 def test_kv_says_what_it_stops_for(models, frames, scenario_id, word):
     texts = [stops_short(models["kv"], obs)[1].lower() for obs in frames[scenario_id]]
     assert sum(word in text for text in texts) >= 2, texts
+
+
+@pytest.mark.parametrize("scenario_id", ["TL.1-red", "C.1"])
+def test_kv_drives_up_to_a_red_light_and_a_blocking_car_closed_loop_and_stops(models, scenario_id):
+    """Closed loop (the frames above are open loop): a model whose reading flickers as it approaches, or
+    whose steering drifts so the car seems to be in the other lane, runs the light or hits the car here."""
+    import dataclasses
+
+    from vladrivebench.controllers import MPCController
+    from vladrivebench.runner import run_episode
+
+    scenario = dataclasses.replace(load_suite()[scenario_id], max_time_s=25.0)  # long enough to get there
+    simulator = get_registry().create("simulator", "kinematic", {"width": 160, "height": 80})
+    result = run_episode(models["kv"], simulator, MPCController(), scenario, 0)
+    simulator.close()
+    assert result.collisions == 0 and result.violations == 0, result
+    assert result.mean_speed > 1.0, result  # it drove there rather than standing still

@@ -82,10 +82,15 @@ def test_the_expert_stops_exactly_for_blocking_road_users(distance, kind, blocki
 
 
 @settings(max_examples=60, deadline=None)
-@given(distance=st.floats(3.0, 45.0), colour=st.sampled_from(["red", "green"]))
-def test_the_expert_stops_for_red_and_passes_green(distance, colour):
-    decision = expert.ExpertDriver().decide(observation(kind="traffic_light", distance=distance, light=colour))
+@given(distance=st.floats(3.0, expert.LIGHT_SIGHT_DISTANCE), colour=st.sampled_from(["red", "green"]),
+       seed=st.integers(0, 1000))
+def test_the_expert_stops_for_red_and_passes_green_and_names_the_light_wherever_it_is_seen(distance, colour, seed):
+    # A lamp is one pixel at every distance: "road clear" with a lamp in view would contradict "red light"
+    # on the same pixel a few metres later.
+    obs = observation(kind="traffic_light", distance=distance, light=colour)
+    decision = expert.ExpertDriver().decide(obs)
     assert decision.action == ("stop" if colour == "red" else "go")
+    assert colour in expert.sentence_cot(decision, 8.0, np.random.default_rng(seed)).lower()
 
 
 @settings(max_examples=80, deadline=None)
@@ -162,3 +167,33 @@ def test_a_stop_cot_stops_at_its_point_and_approaches_only_a_far_one(speed, stop
     if speed == 0.0:  # from rest: approach a far stop point, wait for a near one
         assert (committed > 0.5) == (stop > expert.APPROACH_MIN_ROOM + 1.0) or \
             expert.APPROACH_MIN_ROOM <= stop <= expert.APPROACH_MIN_ROOM + 1.0
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 10_000), slow=st.floats(0.0, 3.9), distance=st.floats(3.0, 9.0))
+def test_a_slow_step_near_a_salient_obstacle_is_also_learnt_at_speed_braking_hard(seed, slow, distance):
+    from vdb_model_neural.data import FAST_SPEEDS, ExpertModel
+
+    recorded = []
+    model = ExpertModel(np.random.default_rng(seed), 8.0, recorded.append)
+    obs = observation(speed=slow, kind="car", distance=distance, blocking=True)
+    assert expert.vision_vetoes(obs, model.driver.decide(obs))
+    model.generate_cot(obs, np.random.default_rng(0))
+    assert recorded[-1]["speed"] == slow  # the step as driven is always recorded, last
+    for fast in recorded[:-1]:
+        assert FAST_SPEEDS[0] <= fast["speed"] <= FAST_SPEEDS[1] and fast["decision"] == "stop"
+        assert fast["cf_vetoed"] and fast["controls"][0, 0] < 0 and fast["cf_controls"][0, 0] < 0
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 10_000), scenario_id=st.sampled_from(["P.1", "P.4", "C.1", "C.2", "TL.1-red", "S.1"]))
+def test_variants_keep_the_critical_object_and_a_green_light_stands_only_beyond_the_obstacles(seed, scenario_id):
+    from vdb_model_neural.data import variant
+    from vladrivebench.scenarios import load_suite
+
+    scenario = load_suite()[scenario_id]
+    changed = variant(scenario, np.random.default_rng(seed))
+    assert changed.family == scenario.family and changed.critical == scenario.critical
+    if scenario.light is None and changed.light is not None:
+        assert scenario.layout == "straight" and changed.light.state == "green"
+        assert all(changed.light.stop_line > actor.s for actor in changed.actors)

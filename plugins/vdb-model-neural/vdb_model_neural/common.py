@@ -76,31 +76,38 @@ class VisionEncoder(nn.Module):
         )
         # Per-pixel colour features max-pooled over each grid cell: a lit lamp is one pixel at every
         # distance on this camera, and a strided convolution mixes it with its dark housing before any
-        # pooling; a 1×1 branch keeps "this cell holds a saturated red/yellow/green pixel" intact.
-        self.lamps = nn.Sequential(nn.Conv2d(3, LAMP_CHANNELS, 1), nn.GELU(),
-                                   nn.Conv2d(LAMP_CHANNELS, LAMP_CHANNELS, 1), nn.GELU())
+        # pooling; a per-pixel branch keeps "this cell holds a saturated red/yellow/green pixel" intact.
+        # One layer is enough: a saturated lamp colour is linearly separable from every other colour drawn.
+        self.lamps = nn.Sequential(nn.Linear(3, LAMP_CHANNELS), nn.ReLU())
         self.project = nn.Linear(2 * channels, hidden)
         self.project_zoom = nn.Linear(2 * channels + LAMP_CHANNELS, hidden)
+        self.project_lamp = nn.Linear(LAMP_CHANNELS, hidden)
         self.position = nn.Parameter(torch.zeros(2 * rows * cols, hidden))
         self.ego = nn.Linear(1 + len(NAV_COMMANDS), hidden)
 
     @property
     def n_tokens(self) -> int:
-        return 2 * self.rows * self.cols + 1
+        return 2 * self.rows * self.cols + 2
 
     def forward(self, images: torch.Tensor, ego: torch.Tensor) -> torch.Tensor:
-        """``(N, 3, H, W)`` images and ``(N, F)`` ego features → ``(N, 2·rows·cols + 1, hidden)`` prefix:
+        """``(N, 3, H, W)`` images and ``(N, F)`` ego features → ``(N, 2·rows·cols + 2, hidden)`` prefix:
         the whole view, a 2× zoom on the road ahead (where distant obstacles and lights are a few pixels),
-        and the ego token."""
+        a lamp token and the ego token."""
         height, width = images.shape[-2:]
-        ahead = images[:, :, int(0.3 * height) : int(0.7 * height), int(0.25 * width) : int(0.75 * width)]
-        zoomed = F.interpolate(ahead, scale_factor=2.0, mode="nearest")
-        # Lamp features at the crop's native resolution (a lit lamp is there in every suite scene).
-        lamps = F.adaptive_max_pool2d(self.lamps(ahead), (self.rows, self.cols))
+        rows, cols = slice(int(0.3 * height), int(0.7 * height)), slice(int(0.25 * width), int(0.75 * width))
+        zoomed = F.interpolate(images[:, :, rows, cols], scale_factor=2.0, mode="nearest")
+        # Per-pixel colour features at native resolution (channels last: a per-pixel MLP, cheaper on CPU
+        # than 1×1 convolutions) above the lower 30 % of the view (road surface, never a lamp), max-pooled
+        # over the road-ahead cells and over the whole upper view.
+        pixels = self.lamps(images[:, :, : rows.stop].permute(0, 2, 3, 1).contiguous())
+        lamps = F.adaptive_max_pool2d(pixels[:, rows, cols].permute(0, 3, 1, 2), (self.rows, self.cols))
         whole = self.project(self._cells(self._grid(images)))
         ahead_tokens = self.project_zoom(self._cells(torch.cat([self._grid(zoomed), lamps], dim=1)))
         tokens = torch.cat([whole, ahead_tokens], dim=1) + self.position
-        return torch.cat([tokens, self.ego(ego).unsqueeze(1)], dim=1)
+        # The strongest lamp-like pixel anywhere in view, in a token of its own: whether a light is lit, and
+        # which colour, must not depend on the buildings that happen to share its grid cell.
+        lamp = self.project_lamp(pixels.flatten(1, 2).max(dim=1).values).unsqueeze(1)
+        return torch.cat([tokens, lamp, self.ego(ego).unsqueeze(1)], dim=1)
 
     def _grid(self, images: torch.Tensor) -> torch.Tensor:
         """``(N, 2·channels, rows, cols)``: mean and max of the convolution features over each grid cell

@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 from vladrivebench.records import CoT, CoTFormat, Observation, Trajectory, TrajectorySpec
+from vladrivebench.scenarios import LightSpec
 
 from .common import IMAGE_HEIGHT, IMAGE_WIDTH, image_batch
 from .expert import (
@@ -38,9 +39,16 @@ FAMILY_WEIGHTS = {"traffic_light": 2, "stopped_car": 3}
 """How many times a family's scenarios enter the episode rotation: a lit lamp is one pixel and a blocking
 car the one obstacle the safety override must respect, so both get more episodes than their file count."""
 SCENERIES = ("plain", "suburban", "urban")
+GREEN_BEYOND_SHARE = 0.3
+"""Share of obstacle variants on a straight road that get a green light beyond the obstacle (as on the
+safety-override routes, which are held out): a lit lamp in view must not hide the pedestrian."""
 SLOW_SPEED = 1.5
 LATE_SHARE = 0.5
 """Share of episodes whose driving reacts late to a stop (the labels are always the expert's decision)."""
+FAST_SPEEDS = (4.0, 9.0)
+FAST_SHARE = 0.5
+"""Share of the slow steps near a salient obstacle that are also recorded as if the ego drove at a speed drawn
+from ``FAST_SPEEDS`` (the image does not show speed): the expert brakes hard there, whatever the CoT says."""
 
 
 @dataclass
@@ -131,9 +139,14 @@ class ExpertModel:
         if decision.action == "go" and 0.0 < obs.ego.speed < SLOW_SPEED:
             # The same scene seen at rest: starting up is otherwise a handful of steps per episode.
             self._sample(dataclasses.replace(obs, ego=dataclasses.replace(obs.ego, speed=0.0)), decision)
-        return self._sample(obs, decision)
+        if vision_vetoes(obs, decision) and obs.ego.speed < FAST_SPEEDS[0] and self.rng.random() < FAST_SHARE:
+            # The expert stops early, so it is rarely fast this close to an obstacle — but a model that
+            # brakes late (or is told the road is clear) is, and must still brake for what it sees.
+            fast = float(self.rng.uniform(*FAST_SPEEDS))
+            self._sample(dataclasses.replace(obs, ego=dataclasses.replace(obs.ego, speed=fast)), decision)
+        return self._sample(obs, decision, keep=not ran_a_light(obs, decision))
 
-    def _sample(self, obs: Observation, decision) -> CoT:
+    def _sample(self, obs: Observation, decision, keep: bool = True) -> CoT:
         controls = self.driver.plan(obs, decision)
         _, cf_text, cf_controls = counterfactual(obs, decision, self.driver.cruise_speed, self.rng)
         sentence = sentence_cot(decision, obs.ego.speed, self.rng)
@@ -152,7 +165,8 @@ class ExpertModel:
             "decision": decision.action,
             "scenario_id": obs.scenario_id, "perception": perception_targets(obs, decision),
         }
-        self.record(sample)
+        if keep:
+            self.record(sample)
         stop_at = decision.stop_distance
         if self.late_reaction is not None and stop_at is not None and stop_at > self.late_reaction:
             stop_at = None  # drive on: the late reactions put the data where a model that brakes late ends up
@@ -169,14 +183,22 @@ class ExpertModel:
         return ""
 
 
+def ran_a_light(obs: Observation, decision) -> bool:
+    """Whether a late-reacting episode has just driven past a light that is not green: the lamp is still in
+    view, and "the road is clear" there would contradict "red light" on the same pixels — such steps are
+    driven but not learnt from."""
+    return decision.reason == "passed" and decision.kind == "traffic_light" \
+        and obs.ground_truth.light_state in ("red", "yellow")
+
+
 PERCEIVED_KINDS = ("none", "pedestrian", "car", "animal", "traffic_light", "stop_sign")
 PERCEIVED_LIGHTS = ("none", "red", "yellow", "green")
-PERCEPTION_RANGE = 100.0
+PERCEPTION_RANGE = 150.0
 
 
 def perception_targets(obs: Observation, decision) -> np.ndarray:
     """What the camera should tell the vision encoder (auxiliary training targets, from the ground truth):
-    stop?, critical kind, blocking?, distance / 60 m, light colour."""
+    stop?, critical kind, blocking?, distance / PERCEPTION_RANGE, light colour."""
     gt = obs.ground_truth
     kind, distance = "none", PERCEPTION_RANGE
     if gt.critical_kind is not None and gt.distance_to_critical is not None \
@@ -206,6 +228,11 @@ def variant(scenario, rng: np.random.Generator):
     light = scenario.light
     if light is not None:
         light = dataclasses.replace(light, state=str(rng.choice(["red", "red", "green", "green", "yellow"])))
+    elif scenario.layout == "straight" and actors and rng.random() < GREEN_BEYOND_SHARE:
+        # A green light beyond the obstacle: the obstacle is still what matters, whatever the lamp says.
+        nearest = min(actor.s for actor in actors)
+        light = LightSpec(state="green", stop_line=float(rng.uniform(nearest + 10.0,
+                                                                      max(nearest + 12.0, road.approach_length))))
     return dataclasses.replace(scenario, road=road, ego=ego, actors=tuple(actors), light=light,
                                id=f"{scenario.id}~v{int(rng.integers(1 << 30))}")
 

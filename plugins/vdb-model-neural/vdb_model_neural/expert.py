@@ -30,9 +30,11 @@ OBSTACLE_MARGIN = 3.0  # stop the front bumper this far before an obstacle (dist
 LINE_MARGIN = 1.0  # … and this far before a stop line
 REACT_DISTANCE = 40.0
 SIGHT_DISTANCE = REACT_DISTANCE + 20  # road users and signs farther than this are not talked about
-LIGHT_SIGHT_DISTANCE = 100.0
+LIGHT_SIGHT_DISTANCE = 150.0
 """A lit lamp is one pixel at any distance on the 80×160 camera, so how far a light is hardly shows: the
-expert names a light's colour, and stops for red, from as far as the suite's approaches (braking gently)."""
+expert names a light's colour, and stops for red, whenever it is in view (the suite's approaches are
+shorter than this; braking gently). A shorter sight distance labelled the first frames of an approach
+"road clear" with the lamp in view — the same pixel as "red light" a few metres later."""
 APPROACH_SPEED = 3.0  # m/s: how a "stop" CoT approaches a stop point that is still far ahead
 APPROACH_MIN_ROOM = 15.0  # m: … farther than this
 SPEED_TIME_CONSTANT = 0.25  # s: how fast the planned speed follows its target
