@@ -50,8 +50,14 @@ def stops_short(model, obs) -> tuple[bool, str]:
     return travelled < obs.ground_truth.distance_to_critical, cot.text
 
 
-@pytest.mark.parametrize("name", ["kv", "qa"])
-@pytest.mark.parametrize("scenario_id", ["TL.1-red", "TL.3-red", "C.1"])
+QA_RUNS_RED = pytest.mark.xfail(strict=True, reason="qa's planner runs red lights while its answers say red "
+                                "(README: closed-loop driving); strict, so a qa that learns it fails here")
+
+
+@pytest.mark.parametrize("name, scenario_id", [
+    ("kv", "TL.1-red"), ("kv", "TL.3-red"), ("kv", "C.1"), ("qa", "TL.1-red"), ("qa", "C.1"),
+    pytest.param("qa", "TL.3-red", marks=QA_RUNS_RED),
+])
 def test_the_models_stop_for_a_red_light_and_a_blocking_car(models, frames, name, scenario_id):
     results = [stops_short(models[name], obs) for obs in frames[scenario_id]]
     assert sum(short for short, _ in results) >= 2, results
@@ -64,9 +70,10 @@ def test_the_models_keep_going_for_a_green_light_and_a_car_beside_the_lane(model
     assert sum(not short for short, _ in results) >= 2, results
 
 
+@pytest.mark.parametrize("name", ["kv", "qa"])
 @pytest.mark.parametrize("scenario_id, word", [("TL.1-red", "red"), ("TL.3-red", "red"), ("C.1", "car")])
-def test_kv_says_what_it_stops_for(models, frames, scenario_id, word):
-    texts = [stops_short(models["kv"], obs)[1].lower() for obs in frames[scenario_id]]
+def test_the_models_say_what_they_should_stop_for(models, frames, name, scenario_id, word):
+    texts = [stops_short(models[name], obs)[1].lower() for obs in frames[scenario_id]]
     assert sum(word in text for text in texts) >= 2, texts
 
 
