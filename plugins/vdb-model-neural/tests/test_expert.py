@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 from vdb_model_neural import expert
 from vdb_model_neural.kv_model import controls_to_trajectory, normalise_controls, rollout
@@ -171,18 +171,24 @@ def test_a_stop_cot_stops_at_its_point_and_approaches_only_a_far_one(speed, stop
 
 @settings(max_examples=40, deadline=None)
 @given(seed=st.integers(0, 10_000), slow=st.floats(0.0, 3.9), distance=st.floats(3.0, 9.0))
+@example(seed=800, slow=0.0, distance=7.0)  # the expert's plan may roll on briefly before it brakes
 def test_a_slow_step_near_a_salient_obstacle_is_also_learnt_at_speed_braking_hard(seed, slow, distance):
     from vdb_model_neural.data import FAST_SPEEDS, ExpertModel
 
     recorded = []
     model = ExpertModel(np.random.default_rng(seed), 8.0, recorded.append)
     obs = observation(speed=slow, kind="car", distance=distance, blocking=True)
-    assert expert.vision_vetoes(obs, model.driver.decide(obs))
+    decision = model.driver.decide(obs)
+    assert expert.vision_vetoes(obs, decision)
     model.generate_cot(obs, np.random.default_rng(0))
     assert recorded[-1]["speed"] == slow  # the step as driven is always recorded, last
     for fast in recorded[:-1]:
-        assert FAST_SPEEDS[0] <= fast["speed"] <= FAST_SPEEDS[1] and fast["decision"] == "stop"
-        assert fast["cf_vetoed"] and fast["controls"][0, 0] < 0 and fast["cf_controls"][0, 0] < 0
+        speed = fast["speed"]
+        assert FAST_SPEEDS[0] <= speed <= FAST_SPEEDS[1] and fast["decision"] == "stop"
+        assert fast["cf_vetoed"] and fast["cf_controls"][0, 0] < 0  # "the road is clear" is overridden: brake now
+        reachable = speed * speed / (2 * expert.MAX_DECEL * 0.8)
+        if decision.stop_distance > reachable + 0.5:  # the expert's own plan stops short of the car
+            assert travelled(fast["controls"], speed) <= decision.stop_distance + 0.3
 
 
 @settings(max_examples=60, deadline=None)
