@@ -96,7 +96,7 @@ class VisionEncoder(nn.Module):
         height, width = images.shape[-2:]
         rows, cols = slice(int(0.3 * height), int(0.7 * height)), slice(int(0.25 * width), int(0.75 * width))
         zoomed = F.interpolate(images[:, :, rows, cols], scale_factor=2.0, mode="nearest")
-        # Per-pixel colour features at native resolution (channels last: a per-pixel MLP, cheaper on CPU
+        # Per-pixel colour features at native resolution (channels last: a linear layer per pixel, cheaper on CPU
         # than 1×1 convolutions) above the lower 30 % of the view (road surface, never a lamp), max-pooled
         # over the road-ahead cells and over the whole upper view.
         pixels = self.lamps(images[:, :, : rows.stop].permute(0, 2, 3, 1).contiguous())
