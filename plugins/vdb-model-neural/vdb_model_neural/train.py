@@ -227,7 +227,9 @@ def _augment(images, rng):
     import torch
     from torch.nn import functional as F
 
-    batch = torch.from_numpy(images).permute(0, 3, 1, 2).float() / 255.0
+    from .common import image_batch
+
+    batch = image_batch(images)
     dx_max, dy_max = SHIFT_PIXELS
     padded = F.pad(batch, (dx_max, dx_max, dy_max, dy_max), mode="replicate")
     height, width = batch.shape[-2:]
