@@ -50,13 +50,8 @@ def stops_short(model, obs) -> tuple[bool, str]:
     return travelled < obs.ground_truth.distance_to_critical, cot.text
 
 
-QA_RUNS_RED = pytest.mark.xfail(strict=True, reason="qa's planner runs red lights while its answers say red "
-                                "(README: closed-loop driving); strict, so a qa that learns it fails here")
-
-
 @pytest.mark.parametrize("name, scenario_id", [
-    ("kv", "TL.1-red"), ("kv", "TL.3-red"), ("kv", "C.1"), ("qa", "TL.1-red"), ("qa", "C.1"),
-    pytest.param("qa", "TL.3-red", marks=QA_RUNS_RED),
+    ("kv", "TL.1-red"), ("kv", "TL.3-red"), ("kv", "C.1"), ("qa", "TL.1-red"), ("qa", "TL.3-red"), ("qa", "C.1"),
 ])
 def test_the_models_stop_for_a_red_light_and_a_blocking_car(models, frames, name, scenario_id):
     results = [stops_short(models[name], obs) for obs in frames[scenario_id]]
@@ -71,24 +66,34 @@ def test_the_models_keep_going_for_a_green_light_and_a_car_beside_the_lane(model
 
 
 @pytest.mark.parametrize("name", ["kv", "qa"])
-@pytest.mark.parametrize("scenario_id, word", [("TL.1-red", "red"), ("TL.3-red", "red"), ("C.1", "car")])
-def test_the_models_say_what_they_should_stop_for(models, frames, name, scenario_id, word):
+@pytest.mark.parametrize("scenario_id, words", [
+    ("TL.1-red", ("red",)), ("TL.3-red", ("red",)), ("C.1", ("car", "stationary vehicle")),  # the templates' names
+])
+def test_the_models_say_what_they_should_stop_for(models, frames, name, scenario_id, words):
     texts = [stops_short(models[name], obs)[1].lower() for obs in frames[scenario_id]]
-    assert sum(word in text for text in texts) >= 2, texts
+    assert sum(any(word in text for word in words) for text in texts) >= 2, texts
 
 
-@pytest.mark.parametrize("scenario_id", ["TL.1-red", "C.1"])
-def test_kv_drives_up_to_a_red_light_and_a_blocking_car_closed_loop_and_stops(models, scenario_id):
-    """Closed loop (the frames above are open loop): a model whose reading flickers as it approaches, or
-    whose steering drifts so the car seems to be in the other lane, runs the light or hits the car here."""
+@pytest.mark.parametrize("name, controller, scenario_id", [
+    ("kv", "mpc", "TL.1-red"), ("kv", "mpc", "C.1"), ("qa", "pid", "TL.3-red"), ("qa", "pid", "C.2"),
+])
+def test_the_models_drive_the_scenario_closed_loop(models, name, controller, scenario_id):
+    """Closed loop (the frames above are open loop): a model whose reading flickers as it approaches runs the
+    light or hits the car here; one whose steering drifts off the lane centre ends up in front of the car
+    beside the lane (C.2: the previous ``qa`` drifted 3.4 m across and stopped there)."""
     import dataclasses
 
-    from vladrivebench.controllers import MPCController
+    from vladrivebench.controllers import MPCController, PIDController
     from vladrivebench.runner import run_episode
 
-    scenario = dataclasses.replace(load_suite()[scenario_id], max_time_s=25.0)  # long enough to get there
+    scenario = load_suite()[scenario_id]
+    if scenario.blocking or scenario.light is not None:
+        scenario = dataclasses.replace(scenario, max_time_s=25.0)  # long enough to get there and stop
     simulator = get_registry().create("simulator", "kinematic", {"width": 160, "height": 80})
-    result = run_episode(models["kv"], simulator, MPCController(), scenario, 0)
+    control = MPCController() if controller == "mpc" else PIDController()
+    result = run_episode(models[name], simulator, control, scenario, 0)
     simulator.close()
     assert result.collisions == 0 and result.violations == 0, result
     assert result.mean_speed > 1.0, result  # it drove there rather than standing still
+    if scenario_id == "C.2":
+        assert result.route_completion > 0.9, result  # on past the car beside the lane

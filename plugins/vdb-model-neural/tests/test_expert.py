@@ -203,3 +203,25 @@ def test_variants_keep_the_critical_object_and_a_green_light_stands_only_beyond_
     if scenario.light is None and changed.light is not None:
         assert scenario.layout == "straight" and changed.light.state == "green"
         assert all(changed.light.stop_line > actor.s for actor in changed.actors)
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 10_000), steps=st.integers(1, 60), speed=st.floats(1.0, 10.0))
+def test_a_wandering_expert_veers_in_bounded_bursts_but_records_its_own_plan(seed, steps, speed):
+    from vdb_model_neural.data import WANDER_CURVATURE, WANDER_STEPS, ExpertModel
+
+    recorded = []
+    model = ExpertModel(np.random.default_rng(seed), 8.0, recorded.append, wander=True)
+    obs = observation(speed=speed)
+    decision = model.driver.decide(obs)
+    run, curvature = 0, None
+    for _ in range(steps):
+        executed = model.generate_cot(obs, np.random.default_rng(0)).state
+        assert np.array_equal(recorded[-1]["controls"], model.driver.plan(obs, decision))  # the way back
+        veered = not np.array_equal(executed, recorded[-1]["controls"])
+        if veered:  # a constant-curvature arc within bounds, in bursts no longer than WANDER_STEPS allow
+            assert np.all(executed[:, 1] == executed[0, 1])
+            assert WANDER_CURVATURE[0] <= abs(executed[0, 1]) <= WANDER_CURVATURE[1]
+        run = run + 1 if veered and executed[0, 1] == curvature else int(veered)  # bursts may follow one another
+        curvature = executed[0, 1] if veered else None
+        assert run <= WANDER_STEPS[1]

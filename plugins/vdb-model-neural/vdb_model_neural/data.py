@@ -3,10 +3,11 @@ closed-loop (through the benchmark's own runner and controllers), and every visi
 
 Variants randomise what the families leave open: where the critical actor stands (distance, lateral
 offset: kerbside or in the lane), the light colour, the scenery, the ego's initial speed, the speed the
-driving expert cruises at, and in half of the episodes a late reaction to stops (the car drives on until
-a random distance before the stop point) — so the models see the states a model that brakes late ends up
-in. The *labels* of a sample are always the expert's decision for the visited state, so a model learns to
-recover (DAgger-style).
+driving expert cruises at, in half of the episodes a late reaction to stops (the car drives on until
+a random distance before the stop point), and in half of them short bursts of wandering steering (the car
+veers off the lane centre) — so the models see the states a model that brakes late or steers badly ends up
+in. The *labels* of a sample are always the expert's decision and plan for the visited state, so a model
+learns to recover (DAgger-style).
 """
 
 from __future__ import annotations
@@ -49,6 +50,15 @@ FAST_SPEEDS = (4.0, 9.0)
 FAST_SHARE = 0.5
 """Share of the slow steps near a salient obstacle that are also recorded as if the ego drove at a speed drawn
 from ``FAST_SPEEDS`` (the image does not show speed): the expert brakes hard there, whatever the CoT says."""
+WANDER_SHARE = 0.5
+"""Share of episodes whose driving veers off the lane centre now and then. Without it every sample is
+centred in its lane and heading along it, and a model whose steering errs a little never learnt to steer
+back (``qa`` drifted 3.4 m across into the next lane on a straight road)."""
+WANDER_RATE = 0.04
+"""Chance per step (10 Hz) that a wandering burst begins."""
+WANDER_STEPS = (5, 20)
+WANDER_CURVATURE = (0.003, 0.012)
+"""Burst length (steps) and the magnitude of the constant curvature (1/m) driven during it, left or right."""
 
 
 @dataclass
@@ -120,11 +130,13 @@ class ExpertModel:
     trajectory_spec = TrajectorySpec(3.0, 10.0)
 
     def __init__(self, rng: np.random.Generator, exec_cruise: float, record: Callable[[dict], None],
-                 max_wait_steps: int = 15, late_reaction: float | None = None):
+                 max_wait_steps: int = 15, late_reaction: float | None = None, wander: bool = False):
         self.rng, self.exec_cruise, self.record = rng, exec_cruise, record
         self.driver = ExpertDriver()
         self.max_wait_steps, self.waited = max_wait_steps, 0
         self.late_reaction = late_reaction
+        self.wander = wander
+        self.wander_steps_left, self.wander_curvature = 0, 0.0
 
     def reset(self, seed: int) -> None:
         self.driver.reset()
@@ -144,7 +156,21 @@ class ExpertModel:
             # brakes late (or is told the road is clear) is, and must still brake for what it sees.
             fast = float(self.rng.uniform(*FAST_SPEEDS))
             self._sample(dataclasses.replace(obs, ego=dataclasses.replace(obs.ego, speed=fast)), decision)
-        return self._sample(obs, decision, keep=not ran_a_light(obs, decision))
+        cot = self._sample(obs, decision, keep=not ran_a_light(obs, decision))
+        return self._wandering(cot) if self.wander else cot
+
+    def _wandering(self, cot: CoT) -> CoT:
+        """``cot`` with its executed plan replaced by a constant-curvature arc while a burst lasts (the
+        recorded sample keeps the expert's plan: that is the way back)."""
+        if self.wander_steps_left == 0 and self.rng.random() < WANDER_RATE:
+            self.wander_steps_left = int(self.rng.integers(WANDER_STEPS[0], WANDER_STEPS[1] + 1))
+            self.wander_curvature = float(self.rng.choice([-1.0, 1.0]) * self.rng.uniform(*WANDER_CURVATURE))
+        if self.wander_steps_left == 0:
+            return cot
+        self.wander_steps_left -= 1
+        executed = cot.state.copy()
+        executed[:, 1] = self.wander_curvature
+        return dataclasses.replace(cot, state=executed)
 
     def _sample(self, obs: Observation, decision, keep: bool = True) -> CoT:
         controls = self.driver.plan(obs, decision)
@@ -294,7 +320,8 @@ def _drive_episode(job: tuple) -> list[dict]:
     kept: list[dict] = []
     offset = int(rng.integers(every))
     late = float(rng.uniform(2.0, 25.0)) if rng.random() < LATE_SHARE else None
-    expert = ExpertModel(rng, float(rng.uniform(5.5, 9.5)), kept.append, late_reaction=late)
+    wander = bool(rng.random() < WANDER_SHARE)
+    expert = ExpertModel(rng, float(rng.uniform(5.5, 9.5)), kept.append, late_reaction=late, wander=wander)
     controller = MPCController() if episode % 2 else PIDController()
     try:
         run_episode(expert, _SIMULATOR, controller, scenario, int(rng.integers(1 << 30)))

@@ -133,7 +133,7 @@ def train_qa(dataset, seed: int, steps: int | None = None, threads: int = 2, log
     ids = codec.ids
     questions = {slot: codec.encode(QUESTIONS[slot]) for slot in SLOTS}
     answers = [{slot: codec.encode(s[slot]) for slot in SLOTS} for s in dataset.slots]
-    targets = torch.tensor(normalise_controls(dataset.controls), dtype=torch.float32)
+    targets = torch.tensor(normalise_controls(qa_targets(dataset)), dtype=torch.float32)
     ego = ego_features(dataset.speeds, dataset.commands)
     perception = torch.tensor(dataset.perception, dtype=torch.float32)
     probe = _perception_probe(network)
@@ -178,6 +178,17 @@ def train_qa(dataset, seed: int, steps: int | None = None, threads: int = 2, log
                 f"perception {aux_loss.item():.3f}  "
                 f"{time.perf_counter() - started:.0f} s")
     return network.eval(), codec, config
+
+
+def qa_targets(dataset):
+    """The ``qa`` planner's targets ``(N, 30, 2)``: the expert's plan, except that a "stop" decision
+    brakes from now on, uniformly to the stop point (approaching a far one at walking pace) — the profile
+    ``kv`` learns. The expert's own plan brakes as late as comfort allows; a planner that regresses it to
+    within a few metres, from a lamp that is a pixel or two wide, brakes too late and runs the light."""
+    import numpy as np
+
+    stopping = np.array([d == "stop" for d in dataset.decisions])
+    return np.where(stopping[:, None, None], dataset.sentence_controls, dataset.controls)
 
 
 def _perception_probe(network):
