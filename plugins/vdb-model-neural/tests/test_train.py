@@ -5,6 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from vdb_model_neural import expert, train
 from vdb_model_neural.common import bundle_paths, save_bundle
 from vdb_model_neural.data import Dataset
@@ -55,3 +57,16 @@ def test_expert_data_is_the_same_whatever_the_number_of_workers():
     assert len(one) == len(two) > 0
     assert np.array_equal(one.images, two.images) and np.array_equal(one.controls, two.controls)
     assert one.sentences == two.sentences and one.cf_sentences == two.cf_sentences
+
+
+@settings(max_examples=30, deadline=None)
+@given(decisions=st.lists(st.sampled_from(["go", "stop"]), min_size=1, max_size=12))
+def test_qa_learns_the_committed_profile_for_a_stop_and_the_experts_plan_otherwise(decisions):
+    from types import SimpleNamespace
+
+    n = len(decisions)
+    plans = np.arange(n * 60, dtype=float).reshape(n, 30, 2)
+    dataset = SimpleNamespace(decisions=decisions, controls=plans, sentence_controls=-plans)
+    targets = train.qa_targets(dataset)
+    for row, decision in enumerate(decisions):
+        assert np.array_equal(targets[row], -plans[row] if decision == "stop" else plans[row])

@@ -72,8 +72,8 @@ class Dataset:
     commands: list[str]
     sentences: list[str]
     slots: list[dict[str, str]]
-    controls: np.ndarray  # (N, 30, 2) the expert's plan (the qa model's target)
-    sentence_controls: np.ndarray  # (N, 30, 2) the plan the sentence commits to (the kv model's target)
+    controls: np.ndarray  # (N, 30, 2) the expert's plan (the qa model's target when it goes)
+    sentence_controls: np.ndarray  # (N, 30, 2) the plan the sentence commits to (kv's target; qa's for a stop)
     waypoints: np.ndarray  # (N, 30, 2)
     cf_sentences: list[str]
     cf_controls: np.ndarray  # (N, 30, 2)
