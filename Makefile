@@ -12,7 +12,7 @@ install:
 	$(PIP) install -e ".[test]" $(addprefix -e ,$(PLUGINS))
 
 demo: install
-	$(PYTHON) -m vladrivebench.cli demo
+	$(PYTHON) -m vladrivebench._cli.main demo
 
 test: install
 	$(PYTHON) -m ruff check .

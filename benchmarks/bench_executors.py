@@ -61,9 +61,9 @@ def available_parallelism(workers: int, iterations: int = 4_000_000) -> float:
 
 
 def sweep_config(seeds: int, render: bool):
-    from vladrivebench.plugins import get_registry
-    from vladrivebench.scenarios import resolve_scenarios
-    from vladrivebench.sweep import ComponentSpec, RunConfig
+    from vladrivebench._engine.registry import get_registry
+    from vladrivebench._engine.sweep import ComponentSpec, RunConfig
+    from vladrivebench._scenarios.spec import resolve_scenarios
 
     scenarios = resolve_scenarios(list(SCENARIOS), get_registry())
     return RunConfig(ComponentSpec("model", "scripted"), ComponentSpec("simulator", "kinematic", {"render": render}),
@@ -71,7 +71,7 @@ def sweep_config(seeds: int, render: bool):
 
 
 def timed_sweep(config, out: Path, executor) -> float:
-    from vladrivebench.sweep import run_sweep
+    from vladrivebench._engine.sweep import run_sweep
 
     started = time.perf_counter()
     summary = run_sweep(config, out, executor=executor)
@@ -106,7 +106,7 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=1, help="rounds over all executors; best time kept")
     args = parser.parse_args()
 
-    from vladrivebench.executors import ProcessExecutor, SequentialExecutor
+    from vladrivebench._engine.executors import ProcessExecutor, SequentialExecutor
 
     config = sweep_config(args.seeds, args.render)
     episodes = len(config.scenarios) * len(config.seeds)

@@ -22,9 +22,9 @@ SCENARIO = "P.2"
 
 def closed_loop_costs(steps: int, repeats: int) -> dict[str, float]:
     """CPU seconds per step of the simulator (with camera), the scripted model and the PID controller."""
-    from vladrivebench.plugins import get_registry
-    from vladrivebench.rng import step_rng
-    from vladrivebench.scenarios import resolve_scenarios
+    from vladrivebench._engine.registry import get_registry
+    from vladrivebench._engine.rng import step_rng
+    from vladrivebench._scenarios.spec import resolve_scenarios
 
     registry = get_registry()
     (scenario,) = resolve_scenarios(SCENARIO)
@@ -82,7 +82,7 @@ def main() -> None:
         print(f"  {name:<11} {seconds * 1e3:7.3f} ms")
     print(f"  simulator + rendering / scripted-model step = {costs['simulator'] / costs['model']:.2f}")
     print(f"  closed-loop steps per second (CPU) = {1 / loop:.0f}  ({1 / loop / 10:.0f}x real time at 10 Hz)")
-    wall = wall_time(["-m", "vladrivebench.cli", "list-plugins"])
+    wall = wall_time(["-m", "vladrivebench._cli.main", "list-plugins"])
     bare = wall_time(["-c", "pass"])
     print(f"vdb list-plugins wall time (median of 5 fresh interpreters) = {wall:.3f} s; "
           f"target 0.5 s -> {wall / 0.5:.2f} of the target; a bare interpreter start here takes {bare:.3f} s "

@@ -46,8 +46,8 @@ def timed_episode(model, sim, controller, route, policy, out: Path) -> tuple[flo
     CPU time rather than wall time: the machine is shared, and every component here runs on this process's
     one thread (the neural models default to one torch thread), so CPU time is what the step costs.
     """
-    from vladrivebench.logs import EpisodeWriter
-    from vladrivebench.runner import run_episode
+    from vladrivebench._engine.runner import run_episode
+    from vladrivebench._logs.episodes import EpisodeWriter
 
     started = time.process_time()
     with EpisodeWriter(out, {"episode_id": out.stem, "model": {"name": "bench"}, "scenario": {"id": route.id},
@@ -90,8 +90,8 @@ def kv_weights(explicit: str | None) -> str | None:
 
 
 def bench_model(registry, label: str, name: str, options: dict, batch: bool, args, route, folder: Path) -> dict:
-    from vladrivebench.conditions import build_library
-    from vladrivebench.intervention import BaselinePolicy, OpenLoopPolicy, Splicer
+    from vladrivebench._intervention.conditions import build_library
+    from vladrivebench._intervention.runs import BaselinePolicy, OpenLoopPolicy, Splicer
 
     model = build(registry, "model", name, options)
     sim = build(registry, "simulator", "kinematic", {})
@@ -125,8 +125,8 @@ def main(argv: list[str] | None = None) -> int:
     if max(args.ks) > len(CONDITION_POOL):
         parser.error(f"--ks: at most {len(CONDITION_POOL)} conditions")
 
-    from vladrivebench.plugins import get_registry
-    from vladrivebench.scenarios import resolve_scenarios
+    from vladrivebench._engine.registry import get_registry
+    from vladrivebench._scenarios.spec import resolve_scenarios
 
     registry = get_registry()
     route = dataclasses.replace(resolve_scenarios("E.1", registry)[0], max_time_s=args.steps / 10.0)

@@ -52,9 +52,9 @@ def main() -> None:
 
     from vdb_labeler_lexicon import plugin as lexicon_plugin
     from vdb_labeler_lexicon.labeler import LexiconLabeler
-    from vladrivebench import builtins
-    from vladrivebench.analysis import label_items, read_directory
-    from vladrivebench.cli import main as vdb
+    from vladrivebench import _builtins as builtins
+    from vladrivebench._analysis.dataset import label_items, read_directory
+    from vladrivebench._cli.main import main as vdb
     from vladrivebench.testing import isolated_registry
 
     work = Path(tempfile.mkdtemp(prefix="vdb-bench-label-"))

@@ -33,8 +33,8 @@ def median_time(fn, repeats: int) -> float:
 
 
 def observation():
-    from vladrivebench.plugins import get_registry
-    from vladrivebench.scenarios import load_suite
+    from vladrivebench._engine.registry import get_registry
+    from vladrivebench._scenarios.spec import load_suite
 
     registry = get_registry()
     simulator = registry.create("simulator", "kinematic")
@@ -49,7 +49,7 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=5)
     args = parser.parse_args()
     from vdb_model_neural import toolkit
-    from vladrivebench.plugins import get_registry
+    from vladrivebench._engine.registry import get_registry
 
     registry = get_registry()
     kv = registry.create("model", "kv")

@@ -22,7 +22,7 @@ import time
 import numpy as np
 from vdb_model_scripted.model import ScriptedModel
 from vdb_model_scripted.testing import make_observation
-from vladrivebench.controllers import MPCController, PIDController
+from vladrivebench._builtins.controllers import MPCController, PIDController
 
 SITUATIONS = [dict(), dict(kind="pedestrian", distance=30.0), dict(kind="car", distance=12.0),
               dict(kind="traffic_light", distance=14.0, light="red"), dict(kind="stop_sign", distance=12.0),

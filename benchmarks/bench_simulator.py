@@ -22,7 +22,7 @@ SCENARIOS = ("E.1", "P.2", "TL.3-green", "E.2")
 def lane_keeping(obs, speed: float = 6.5):
     """Pure pursuit on ``route_ahead`` at ``speed`` (no model: the benchmark measures the simulator)."""
     from vladrivebench.records import Control
-    from vladrivebench.world.bicycle import MAX_WHEEL_ANGLE, WHEELBASE
+    from vladrivebench.world._bicycle import MAX_WHEEL_ANGLE, WHEELBASE
 
     x, y = obs.ground_truth.route_ahead[5]
     delta = math.atan2(2.0 * WHEELBASE * math.sin(math.atan2(y, x)), math.hypot(x, y))
@@ -33,7 +33,7 @@ def lane_keeping(obs, speed: float = 6.5):
 
 def seconds_per_step(scenario, render: bool, width: int, height: int, steps: int, repeats: int) -> float:
     """Best-of-``repeats`` CPU time of one simulator step (reset excluded)."""
-    from vladrivebench.plugins import get_registry
+    from vladrivebench._engine.registry import get_registry
 
     sim = get_registry().create("simulator", "kinematic", {"render": render, "width": width, "height": height})
     best = math.inf
@@ -60,7 +60,7 @@ def main() -> None:
     parser.add_argument("--height", type=int, default=80)
     args = parser.parse_args()
 
-    from vladrivebench.scenarios import resolve_scenarios
+    from vladrivebench._scenarios.spec import resolve_scenarios
 
     print(f"kinematic simulator, image {args.width}x{args.height}, {args.steps} steps x best of {args.repeats} "
           "(CPU time per step)")

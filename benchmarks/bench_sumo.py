@@ -10,7 +10,7 @@ For every scenario of the suite, the ego cruises at about 6 m/s (a fixed throttl
 - ``step``: the whole ``step()`` (render=False): ego, scripted road users, SUMO, collisions, ground truth;
 - ``sumo``: the part of a step spent outside the shared ground truth (libsumo: placing the ego and the
   stand-ins, SUMO's own step, reading the road users back, SUMO's collisions) — the target is < 2 ms;
-- ``truth``: the shared ground-truth computation (:class:`~vladrivebench.world.truth.TruthTracker`), the
+- ``truth``: the shared ground-truth computation (:class:`~vladrivebench.world._truth.TruthTracker`), the
   same code and cost as in the kinematic simulator;
 - the same with background traffic (``--traffic`` vehicles and pedestrians per hour) on three scenarios.
 Ratios against the 2 ms target are printed; the machine may be shared, so the load average is printed too.
@@ -87,7 +87,7 @@ def main() -> None:
     args = parser.parse_args()
 
     from vdb_sim_sumo.plugin import make_simulator
-    from vladrivebench.scenarios import resolve_scenarios
+    from vladrivebench._scenarios.spec import resolve_scenarios
 
     scenarios = resolve_scenarios(args.scenarios)
     work = Path(tempfile.mkdtemp(prefix="vdb-bench-sumo-"))

@@ -11,7 +11,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
-from vladrivebench.logs import EpisodeWriter
+from vladrivebench._logs.episodes import EpisodeWriter
 from vladrivebench.records import Actor, Control, CoT, EgoState, GroundTruth, Observation, Trajectory
 
 GROUPS = {
@@ -149,7 +149,7 @@ def register_labelers(register):
 def registry_with_fakes():
     """The core's built-ins plus the fake labelers, nothing installed."""
     import analysis_episodes
-    from vladrivebench import builtins
+    from vladrivebench import _builtins as builtins
     from vladrivebench.testing import isolated_registry
 
     return isolated_registry(("core", builtins), ("fakes", analysis_episodes))

@@ -164,8 +164,8 @@ def fake_registry(*extra):
     """The core's built-ins (scenario suite, conditions, metrics) and these fakes, nothing installed."""
     import importlib
 
-    from vladrivebench import builtins
-    from vladrivebench.plugins import Registry
+    from vladrivebench import _builtins as builtins
+    from vladrivebench._engine.registry import Registry
 
     return Registry([("core", builtins), ("fakes", importlib.import_module("intervention_fakes").Fakes()),
                      *extra], entry_points=False)

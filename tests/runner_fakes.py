@@ -13,6 +13,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 import vladrivebench
+from vladrivebench._engine.rng import episode_rng
 from vladrivebench.errors import ConfigError
 from vladrivebench.records import (
     Actor,
@@ -25,7 +26,6 @@ from vladrivebench.records import (
     Trajectory,
     TrajectorySpec,
 )
-from vladrivebench.rng import episode_rng
 
 DT = 0.1
 
@@ -251,7 +251,7 @@ def square_then_die_soon(job: int) -> tuple[int, int]:
 
 def component_identity(job) -> tuple[int, int]:
     """(worker pid, identity of the model this worker built for ``job``): shows models are reused."""
-    from vladrivebench import sweep
+    from vladrivebench._engine import sweep
 
     registry = sweep._registry_for(job.registry)
     return os.getpid(), id(sweep._component(registry, job.model))
@@ -259,7 +259,7 @@ def component_identity(job) -> tuple[int, int]:
 
 # -- a `vdb` entry point with only these fakes installed (for subprocess tests) ------------------------
 def fake_resolve_scenarios(spec, registry=None):
-    """Stands in for ``vladrivebench.scenarios.resolve_scenarios`` with the fake scenarios."""
+    """Stands in for ``vladrivebench._scenarios.spec.resolve_scenarios`` with the fake scenarios."""
     from vladrivebench.errors import UnknownNameError
 
     ids = [s.id for s in SCENARIOS] if spec == "all" else (spec.split(",") if isinstance(spec, str) else spec)
@@ -272,8 +272,8 @@ def fake_resolve_scenarios(spec, registry=None):
 
 def fake_registry():
     """The core's built-ins (executors …) and these fakes, without any installed plugin."""
-    from vladrivebench import builtins
-    from vladrivebench.plugins import Registry
+    from vladrivebench import _builtins as builtins
+    from vladrivebench._engine.registry import Registry
 
     return Registry([("core", builtins), ("fakes", this_module())], entry_points=False)
 
@@ -286,7 +286,9 @@ def this_module():
 
 def vdb_main(argv: list[str]) -> int:
     """``vdb`` with the fake registry and fake scenario resolution."""
-    from vladrivebench import cli, plugins, scenarios
+    from vladrivebench._cli import main as cli
+    from vladrivebench._engine import registry as plugins
+    from vladrivebench._scenarios import spec as scenarios
 
     plugins.set_registry(fake_registry())
     scenarios.resolve_scenarios = fake_resolve_scenarios

@@ -7,7 +7,7 @@ import math
 import pytest
 from hypothesis import assume, given
 from hypothesis import strategies as st
-from vladrivebench.alignment import (
+from vladrivebench._analysis.alignment import (
     ACCELERATE,
     DECELERATE,
     MAINTAIN,

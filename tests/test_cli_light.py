@@ -11,7 +11,7 @@ HEAVY = ("torch", "transformers", "libsumo", "ray", "numpy", "scipy", "statsmode
 
 PROBE = """
 import sys
-from vladrivebench.cli import main
+from vladrivebench._cli.main import main
 code = main({args!r})
 heavy = sorted(m for m in {heavy!r} if m in sys.modules)
 print("HEAVY=" + ",".join(heavy), file=sys.stderr)
@@ -28,15 +28,15 @@ def test_command_imports_no_heavy_module(args):
 
 
 def test_bad_command_is_one_line_exit_2():
-    result = subprocess.run([sys.executable, "-m", "vladrivebench.cli", "no-such-command"],
+    result = subprocess.run([sys.executable, "-m", "vladrivebench._cli.main", "no-such-command"],
                             capture_output=True, text=True, timeout=120)
     assert result.returncode == 2
     assert result.stderr.strip().count("\n") == 0 and "No such command" in result.stderr
 
 
 def test_intervene_default_seeds_is_the_protocols():
-    from vladrivebench.cmd_intervene import COMMANDS
-    from vladrivebench.intervention import DEFAULT_SEEDS
+    from vladrivebench._cli.intervene import COMMANDS
+    from vladrivebench._intervention.runs import DEFAULT_SEEDS
 
     (intervene,) = [c for c in COMMANDS if c.name == "intervene"]
     (seeds,) = [p for p in intervene.params if p.name == "seeds"]
@@ -45,7 +45,7 @@ def test_intervene_default_seeds_is_the_protocols():
 
 def test_a_command_exit_code_reaches_the_shell():
     import click
-    from vladrivebench import cli
+    from vladrivebench._cli import main as cli
 
     @click.command("exit-seven")
     @click.pass_context

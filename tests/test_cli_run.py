@@ -9,7 +9,9 @@ import sys
 from pathlib import Path
 
 import pytest
-from vladrivebench import cli, plugins, scenarios
+from vladrivebench._cli import main as cli
+from vladrivebench._engine import registry as plugins
+from vladrivebench._scenarios import spec as scenarios
 
 
 def load_fakes():
@@ -194,7 +196,7 @@ def test_workers_use_the_process_pool_with_identical_results(tmp_path, capsys):
 
 
 def test_log_images_flag(tmp_path, capsys):
-    from vladrivebench.logs import read_episode
+    from vladrivebench._logs.episodes import read_episode
 
     assert vdb(capsys, *BASE, "--scenarios", "road", "--seeds", 1, "--out", tmp_path, "--quiet", "--log-images")[0] == 0
     episode = read_episode(tmp_path / "episodes" / "echo__road__s0.mcap")

@@ -6,9 +6,9 @@ import json
 from pathlib import Path
 
 import pytest
-from vladrivebench import cli
-from vladrivebench.logs import find_episodes, load_episodes, read_episode
-from vladrivebench.plugins import Registry, set_registry
+from vladrivebench._cli import main as cli
+from vladrivebench._engine.registry import Registry, set_registry
+from vladrivebench._logs.episodes import find_episodes, load_episodes, read_episode
 
 SHORT = ["--model", "scripted", "--sim-opt", "render=false", "--quiet"]
 

@@ -7,9 +7,10 @@ import json
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from vladrivebench import builtins as core_plugin
+from vladrivebench import _builtins as core_plugin
 from vladrivebench import hookimpl
-from vladrivebench.conditions import (
+from vladrivebench._engine.registry import Registry
+from vladrivebench._intervention.conditions import (
     PAPER_TEXTS,
     ConditionError,
     ConditionLibrary,
@@ -26,7 +27,6 @@ from vladrivebench.conditions import (
     text_problem,
 )
 from vladrivebench.errors import UnknownNameError
-from vladrivebench.plugins import Registry
 from vladrivebench.records import CoT, CoTFormat
 
 QA = CoTFormat("slots", ("scene", "objects", "decision"))

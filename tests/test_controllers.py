@@ -8,18 +8,18 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from vladrivebench import builtins
-from vladrivebench.controllers import (
+from vladrivebench import _builtins as builtins
+from vladrivebench._builtins.controllers import (
     MAX_CURVATURE,
     MAX_SPEED,
     MPCController,
     PIDController,
     desired_speed,
 )
+from vladrivebench._engine.registry import Registry
 from vladrivebench.errors import ModelOutputError
-from vladrivebench.plugins import Registry
 from vladrivebench.records import EgoState, Trajectory
-from vladrivebench.world.bicycle import BRAKE_DECEL, DT, THROTTLE_ACCEL, apply_control
+from vladrivebench.world._bicycle import BRAKE_DECEL, DT, THROTTLE_ACCEL, apply_control
 
 TIMES = DT * np.arange(1, 31)
 CONTROLLERS = [PIDController, MPCController]

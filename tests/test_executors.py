@@ -8,10 +8,10 @@ import sys
 from pathlib import Path
 
 import pytest
+from vladrivebench._engine.executors import JobFailure, ProcessExecutor, SequentialExecutor
+from vladrivebench._engine.registry import Registry
+from vladrivebench._engine.sweep import ComponentSpec, RegistrySpec, RunConfig, make_jobs
 from vladrivebench.errors import ConfigError
-from vladrivebench.executors import JobFailure, ProcessExecutor, SequentialExecutor
-from vladrivebench.plugins import Registry
-from vladrivebench.sweep import ComponentSpec, RegistrySpec, RunConfig, make_jobs
 
 
 def load_fakes():

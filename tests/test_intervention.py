@@ -12,11 +12,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from vladrivebench import builtins as core_plugin
+from vladrivebench import _builtins as core_plugin
 from vladrivebench import hookimpl
-from vladrivebench.conditions import ConditionError
-from vladrivebench.errors import ConfigError, ScenarioError, UnknownNameError
-from vladrivebench.intervention import (
+from vladrivebench._engine.registry import Registry
+from vladrivebench._engine.sweep import ComponentSpec
+from vladrivebench._intervention.conditions import ConditionError
+from vladrivebench._intervention.runs import (
     RESULTS_NAME,
     InterventionConfig,
     InterventionRun,
@@ -26,11 +27,10 @@ from vladrivebench.intervention import (
     seed_plan,
     trajectory_difference,
 )
-from vladrivebench.logs import find_episodes, read_episode
-from vladrivebench.plugins import Registry
+from vladrivebench._logs.episodes import find_episodes, read_episode
+from vladrivebench._scenarios.spec import resolve_scenarios
+from vladrivebench.errors import ConfigError, ScenarioError, UnknownNameError
 from vladrivebench.records import EgoState, Trajectory
-from vladrivebench.scenarios import resolve_scenarios
-from vladrivebench.sweep import ComponentSpec
 
 
 def load_fakes():

@@ -8,9 +8,10 @@ import sys
 from pathlib import Path
 
 import pytest
-from vladrivebench import cli, plugins
-from vladrivebench.intervention_metrics import InterventionMetric, interval_text, p_text, table_text
-from vladrivebench.metrics import AnalysisDataset, Plot, Table
+from vladrivebench._analysis.tables import AnalysisDataset, Plot, Table
+from vladrivebench._cli import main as cli
+from vladrivebench._engine import registry as plugins
+from vladrivebench._intervention.metric import InterventionMetric, interval_text, p_text, table_text
 
 
 def load_fakes():
@@ -201,8 +202,8 @@ def test_formatting_helpers():
 
 
 def test_the_seeds_default_matches_the_protocols():
-    from vladrivebench.cmd_intervene import intervene_command
-    from vladrivebench.intervention import DEFAULT_SEEDS
+    from vladrivebench._cli.intervene import intervene_command
+    from vladrivebench._intervention.runs import DEFAULT_SEEDS
 
     option = next(p for p in intervene_command.params if p.name == "seeds")
     assert option.default == DEFAULT_SEEDS

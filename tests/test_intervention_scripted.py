@@ -18,16 +18,16 @@ from scipy import stats
 pytest.importorskip("vdb_model_scripted", reason="the scripted model plugin is not installed")
 pytest.importorskip("vdb_sim_kinematic", reason="the kinematic simulator plugin is not installed")
 
-from vladrivebench import builtins as core_plugin  # noqa: E402
-from vladrivebench.intervention import (  # noqa: E402
+from vladrivebench import _builtins as core_plugin  # noqa: E402
+from vladrivebench._engine.registry import Registry  # noqa: E402
+from vladrivebench._engine.sweep import ComponentSpec  # noqa: E402
+from vladrivebench._intervention.runs import (  # noqa: E402
     DEFAULT_SEEDS,
     InterventionConfig,
     InterventionRun,
 )
-from vladrivebench.logs import find_episodes, read_episode  # noqa: E402
-from vladrivebench.plugins import Registry  # noqa: E402
-from vladrivebench.scenarios import resolve_scenarios  # noqa: E402
-from vladrivebench.sweep import ComponentSpec  # noqa: E402
+from vladrivebench._logs.episodes import find_episodes, read_episode  # noqa: E402
+from vladrivebench._scenarios.spec import resolve_scenarios  # noqa: E402
 
 BRAKES_SENTENCE = ("pedestrian", "car", "animal", "red-light")
 # ORION's car text (Table 4) says "maintain your current speed" in its decision slot: not a brake text.

@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import stats
-from vladrivebench.intervention_stats import (
+from vladrivebench._intervention.stats import (
     EpisodeSummary,
     Interval,
     OpenLoopStats,

@@ -9,8 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from statsmodels.stats.inter_rater import cohens_kappa
-from vladrivebench.errors import ConfigError, LogError
-from vladrivebench.labels import (
+from vladrivebench._analysis.labels import (
     LabelStore,
     agreement,
     category,
@@ -23,6 +22,7 @@ from vladrivebench.labels import (
     read_jsonl,
     write_jsonl,
 )
+from vladrivebench.errors import ConfigError, LogError
 from vladrivebench.records import LabelInput, Labels
 
 

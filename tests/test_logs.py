@@ -15,11 +15,17 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
-from vladrivebench import logs
+from vladrivebench._engine.runner import decode_png, observation_from_step
+from vladrivebench._logs import episodes as logs
+from vladrivebench._logs.episodes import (
+    EpisodeWriter,
+    find_episodes,
+    load_episodes,
+    read_episode,
+    read_result,
+)
 from vladrivebench.errors import LogError
-from vladrivebench.logs import EpisodeWriter, find_episodes, load_episodes, read_episode, read_result
 from vladrivebench.records import Actor, Control, CoT, EgoState, GroundTruth, Observation, Trajectory
-from vladrivebench.runner import decode_png, observation_from_step
 
 META = {"episode_id": "m__P.1__s3", "model": {"name": "m", "options": {"alpha": 0.5}},
         "scenario": {"id": "P.1", "family": "pedestrian", "group": "Pedestrian (in-lane)"}, "seed": 3}
@@ -254,6 +260,6 @@ def test_extras_round_trip_any_json(tmp_path_factory, extras):
 def test_reader_does_not_import_heavy_libraries():
     import subprocess
 
-    code = "import vladrivebench.logs, sys; print('torch' in sys.modules)"
+    code = "import vladrivebench._logs.episodes, sys; print('torch' in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "False"

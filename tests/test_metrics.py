@@ -11,25 +11,20 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from statsmodels.stats.proportion import proportion_confint
-from vladrivebench import logs
-from vladrivebench.alignment import action_head_set, cot_action_set, relaxed_aligned
-from vladrivebench.analysis import distance_zone, label_items, load_dataset
-from vladrivebench.errors import ConfigError, LogError
-from vladrivebench.labels import LabelStore, label_key
-from vladrivebench.metrics import (
-    MISSING,
+from vladrivebench._analysis.alignment import action_head_set, cot_action_set, relaxed_aligned
+from vladrivebench._analysis.dataset import distance_zone, label_items, load_dataset
+from vladrivebench._analysis.labels import LabelStore, label_key
+from vladrivebench._analysis.tables import MISSING, Cell, Row, Table, breakdown_text, wilson_interval
+from vladrivebench._builtins.metrics import (
     AlignmentByCommand,
     AlignmentByDistance,
-    Cell,
     ContradictionRate,
     HallucinationRate,
     LightAccuracy,
     MentionRate,
-    Row,
-    Table,
-    breakdown_text,
-    wilson_interval,
 )
+from vladrivebench._logs import episodes as logs
+from vladrivebench.errors import ConfigError, LogError
 
 
 @pytest.fixture(scope="module")
@@ -42,7 +37,7 @@ def fx():
 
 def label_all(directory, fx, fraction=1.0):
     """Label (a leading fraction of) every step with the fake labeler, straight into the store."""
-    from vladrivebench.analysis import read_directory
+    from vladrivebench._analysis.dataset import read_directory
 
     episodes, _ = read_directory(directory)
     items = label_items(episodes)

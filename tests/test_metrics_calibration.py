@@ -18,20 +18,20 @@ import pytest
 from vdb_labeler_lexicon import plugin as lexicon_plugin
 from vdb_model_scripted.model import cot_truth
 from vdb_model_scripted.plugin import make_scripted
-from vladrivebench import builtins
-from vladrivebench.cli import main
-from vladrivebench.controllers import PIDController
-from vladrivebench.logs import EpisodeWriter
-from vladrivebench.metrics import (
+from vladrivebench import _builtins as builtins
+from vladrivebench._analysis.tables import wilson_interval
+from vladrivebench._builtins.controllers import PIDController
+from vladrivebench._builtins.metrics import (
     AlignmentByDistance,
     ContradictionRate,
     HallucinationRate,
     LightAccuracy,
     MentionRate,
-    wilson_interval,
 )
+from vladrivebench._cli.main import main
+from vladrivebench._engine.rng import step_rng
+from vladrivebench._logs.episodes import EpisodeWriter
 from vladrivebench.records import Actor, EgoState, GroundTruth, Observation
-from vladrivebench.rng import step_rng
 from vladrivebench.testing import isolated_registry
 
 SPEED, START, STEPS, SEEDS = 5.5, 60.0, 110, 3
@@ -87,7 +87,7 @@ def calibrated(tmp_path_factory):
                 truths += drive(directory, {"alpha": 0.5, "cot_format": cot_format, **RATES}, kind, seed)
     with isolated_registry(("core", builtins), ("lexicon", lexicon_plugin)):
         assert main(["label", str(directory), "--quiet"]) == 0
-    from vladrivebench.analysis import load_dataset
+    from vladrivebench._analysis.dataset import load_dataset
 
     return load_dataset(directory), truths
 
@@ -150,7 +150,7 @@ def test_light_accuracy_recovers_one_minus_the_light_error_rate(calibrated):
 def test_alignment_rises_with_alpha_where_the_cot_misses_the_obstacle(tmp_path):
     """With a CoT that misses the pedestrian half the time, near the pedestrian the action head follows the
     CoT at α = 1 (aligned) and perception at α = 0 (it stops while the CoT says drive on: misaligned)."""
-    from vladrivebench.analysis import load_dataset
+    from vladrivebench._analysis.dataset import load_dataset
 
     rates = {}
     for alpha in (0.0, 1.0):

@@ -84,7 +84,7 @@ def plugin_path(tmp_path_factory) -> str:
 def vdb(args: list[str], plugin_path: str) -> subprocess.CompletedProcess:
     env = dict(os.environ, PYTHONPATH=plugin_path)
     env.pop("VDB_STRICT_PLUGINS", None)
-    return subprocess.run([sys.executable, "-m", "vladrivebench.cli", *args],
+    return subprocess.run([sys.executable, "-m", "vladrivebench._cli.main", *args],
                           capture_output=True, text=True, env=env, timeout=120)
 
 
@@ -122,7 +122,7 @@ def test_strict_switch_makes_a_broken_plugin_fatal_in_one_line(plugin_path):
 def test_disabling_a_plugin_by_name(plugin_path):
     env_path = plugin_path
     result = subprocess.run(
-        [sys.executable, "-m", "vladrivebench.cli", "list-plugins", "--json"],
+        [sys.executable, "-m", "vladrivebench._cli.main", "list-plugins", "--json"],
         capture_output=True, text=True, timeout=120,
         env=dict(os.environ, PYTHONPATH=env_path, VDB_DISABLE_PLUGINS="brokenimport"),
     )

@@ -6,8 +6,8 @@ import types
 
 import pytest
 import vladrivebench
+from vladrivebench._engine.registry import Registry
 from vladrivebench.errors import ConfigError, PluginLoadError, UnknownNameError
-from vladrivebench.plugins import Registry
 from vladrivebench.testing import isolated_registry
 
 
@@ -114,7 +114,7 @@ def test_scenario_registration_records_paths(tmp_path):
 
 
 def test_isolated_registry_restores_the_previous_one():
-    from vladrivebench.plugins import get_registry
+    from vladrivebench._engine.registry import get_registry
 
     with isolated_registry(("alpha", models_plugin("kv"))):
         assert get_registry().names("model") == ["kv"]

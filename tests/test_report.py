@@ -11,10 +11,10 @@ from pathlib import Path
 
 import pytest
 import vladrivebench
-from vladrivebench.cli import main
-from vladrivebench.labels import LabelStore
-from vladrivebench.metrics import Cell, Row, Table
-from vladrivebench.report import Section, cell_text, render_latex
+from vladrivebench._analysis.labels import LabelStore
+from vladrivebench._analysis.report import Section, cell_text, render_latex
+from vladrivebench._analysis.tables import Cell, Row, Table
+from vladrivebench._cli.main import main
 
 GOLD = Path(__file__).parent / "data" / "gold_labels.jsonl"
 
@@ -216,7 +216,7 @@ def register_metrics(register):
 
 def test_a_failing_third_party_metric_becomes_a_note_or_fails_with_strict(run_dir, fx, capsys):
     this = sys.modules[__name__]
-    from vladrivebench import builtins
+    from vladrivebench import _builtins as builtins
     from vladrivebench.testing import isolated_registry
 
     with isolated_registry(("core", builtins), ("fakes", fx), ("broken", this)):
@@ -244,7 +244,7 @@ def test_latex_escapes_and_dashes():
 
 
 def _dataset():
-    from vladrivebench.metrics import AnalysisDataset
+    from vladrivebench._analysis.tables import AnalysisDataset
 
     return AnalysisDataset(directory=Path("d"), episodes=[])
 

@@ -1,7 +1,7 @@
 """Every rendered cell shows its count, even when the value's text happens to equal the count."""
 
-from vladrivebench.metrics import Cell
-from vladrivebench.report import cell_text
+from vladrivebench._analysis.report import cell_text
+from vladrivebench._analysis.tables import Cell
 
 
 def test_a_rate_whose_text_equals_its_count_still_shows_the_count():

@@ -10,8 +10,8 @@ import pytest
 from vdb_labeler_lexicon import plugin as lexicon_plugin
 from vdb_model_scripted import plugin as scripted_plugin
 from vdb_sim_kinematic import plugin as kinematic_plugin
-from vladrivebench import builtins
-from vladrivebench.cli import main
+from vladrivebench import _builtins as builtins
+from vladrivebench._cli.main import main
 from vladrivebench.testing import isolated_registry
 
 GOLD = Path(__file__).parent / "data" / "gold_labels.jsonl"

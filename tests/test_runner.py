@@ -11,11 +11,8 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from vladrivebench.errors import ModelOutputError
-from vladrivebench.logs import EpisodeWriter, read_episode
-from vladrivebench.records import CoT, Trajectory
-from vladrivebench.rng import step_rng
-from vladrivebench.runner import (
+from vladrivebench._engine.rng import step_rng
+from vladrivebench._engine.runner import (
     EpisodeFailure,
     check_model_output,
     model_step,
@@ -23,6 +20,9 @@ from vladrivebench.runner import (
     own_cot_policy,
     run_episode,
 )
+from vladrivebench._logs.episodes import EpisodeWriter, read_episode
+from vladrivebench.errors import ModelOutputError
+from vladrivebench.records import CoT, Trajectory
 
 
 def load_fakes():
@@ -218,8 +218,8 @@ def test_controller_output_is_checked():
                           st.sampled_from([(), ("red_light:tl0",)])), min_size=1, max_size=30),
        st.floats(0, 150), st.sampled_from(["timeout", "collision", "route_complete", "step_limit"]))
 def test_episode_result_rules(steps, route_length, terminal):
+    from vladrivebench._engine.runner import _Tally
     from vladrivebench.records import EgoState, GroundTruth, Observation
-    from vladrivebench.runner import _Tally
 
     tally = _Tally()
     for i, (speed, progress, collisions, violations) in enumerate(steps):

@@ -13,12 +13,12 @@ from pathlib import Path
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from vladrivebench import sweep
+from vladrivebench._engine import sweep
+from vladrivebench._engine.executors import ProcessExecutor, SequentialExecutor
+from vladrivebench._engine.registry import Registry
+from vladrivebench._engine.sweep import ComponentSpec, RunConfig, run_sweep
+from vladrivebench._logs.episodes import read_episode
 from vladrivebench.errors import ConfigError, UnknownNameError, VdbError
-from vladrivebench.executors import ProcessExecutor, SequentialExecutor
-from vladrivebench.logs import read_episode
-from vladrivebench.plugins import Registry
-from vladrivebench.sweep import ComponentSpec, RunConfig, run_sweep
 
 
 def load_fakes():
@@ -207,7 +207,7 @@ def test_seed_list_and_episode_ids():
 
 
 def test_partials_being_written_are_kept_and_abandoned_ones_removed(tmp_path):
-    from vladrivebench.logs import EpisodeWriter
+    from vladrivebench._logs.episodes import EpisodeWriter
 
     (tmp_path / "episodes").mkdir(parents=True)
     abandoned = tmp_path / "episodes" / f"b.mcap.{os.getpid()}.partial"

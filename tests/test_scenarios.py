@@ -8,17 +8,18 @@ import json
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from vladrivebench import builtins, hookimpl
-from vladrivebench.cli import main
-from vladrivebench.errors import ScenarioError, UnknownNameError
-from vladrivebench.plugins import Registry
-from vladrivebench.scenarios import (
+from vladrivebench import _builtins as builtins
+from vladrivebench import hookimpl
+from vladrivebench._cli.main import main
+from vladrivebench._engine.registry import Registry
+from vladrivebench._scenarios.spec import (
     FAMILIES,
     load_scenario_file,
     load_suite,
     parse_scenario,
     resolve_scenarios,
 )
+from vladrivebench.errors import ScenarioError, UnknownNameError
 from vladrivebench.testing import isolated_registry
 
 SUITE_IDS = (

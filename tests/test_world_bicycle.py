@@ -9,7 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from vladrivebench.errors import ModelOutputError
 from vladrivebench.records import Control, EgoState
-from vladrivebench.world.bicycle import (
+from vladrivebench.world._bicycle import (
     BRAKE_DECEL,
     DT,
     MAX_WHEEL_ANGLE,

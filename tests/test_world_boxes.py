@@ -8,7 +8,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from vladrivebench.records import Actor, EgoState
-from vladrivebench.world.boxes import Box, colliding, overlap
+from vladrivebench.world._boxes import Box, colliding, overlap
 
 sizes = st.floats(0.2, 6.0)
 positions = st.floats(-6.0, 6.0)

@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from vladrivebench._scenarios.spec import parse_scenario
 from vladrivebench.records import Actor, EgoState
-from vladrivebench.scenarios import parse_scenario
-from vladrivebench.world.camera import LAMP_COLOURS, Camera, _fill_convex, count_pixels_differing
-from vladrivebench.world.roads import build_road
+from vladrivebench.world._camera import LAMP_COLOURS, Camera, _fill_convex, count_pixels_differing
+from vladrivebench.world._roads import build_road
 
 EGO = EgoState(0.0, -1.75, 0.0, 0.0)
 

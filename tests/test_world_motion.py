@@ -8,13 +8,13 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from vladrivebench._engine.rng import episode_rng
+from vladrivebench._scenarios.spec import ActorSpec, parse_scenario
 from vladrivebench.errors import ConfigError, ScenarioError
 from vladrivebench.records import EgoState
-from vladrivebench.rng import episode_rng
-from vladrivebench.scenarios import ActorSpec, parse_scenario
-from vladrivebench.world import bicycle
-from vladrivebench.world.boxes import Box, overlap
-from vladrivebench.world.motion import (
+from vladrivebench.world import _bicycle as bicycle
+from vladrivebench.world._boxes import Box, overlap
+from vladrivebench.world._motion import (
     JITTERED_KINDS,
     WORLD_FEATURES,
     ScriptedUser,
@@ -24,7 +24,7 @@ from vladrivebench.world.motion import (
     ego_at_start,
     scripted_users,
 )
-from vladrivebench.world.roads import RouteBuilder, build_road
+from vladrivebench.world._roads import RouteBuilder, build_road
 
 ROUTE = RouteBuilder(0.0, -1.75, 0.0).straight(300.0).build(200.0)
 DT = 0.1

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from vladrivebench.scenarios import parse_scenario
-from vladrivebench.world.roads import (
+from vladrivebench._scenarios.spec import parse_scenario
+from vladrivebench.world._roads import (
     GRASS,
     KERB,
     MARK_WHITE,

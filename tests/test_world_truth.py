@@ -7,10 +7,10 @@ import math
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from vladrivebench._scenarios.spec import parse_scenario
 from vladrivebench.records import Actor, EgoState
-from vladrivebench.scenarios import parse_scenario
-from vladrivebench.world.roads import build_road
-from vladrivebench.world.truth import LEAD_RANGE, TruthTracker
+from vladrivebench.world._roads import build_road
+from vladrivebench.world._truth import LEAD_RANGE, TruthTracker
 
 LANE_Y = -1.75
 

@@ -38,6 +38,10 @@ class ScenarioError(VdbError):
     """A scenario file that is missing, malformed, or asks for something a simulator cannot do."""
 
 
+class ConditionError(ConfigError):
+    """A condition that cannot be resolved or that the model's format or tokenizer cannot take."""
+
+
 class ModelOutputError(VdbError):
     """A model returned something the benchmark cannot use (NaN, wrong shape, wrong type)."""
 

@@ -19,7 +19,7 @@ from typing import Any
 
 import pluggy
 
-from . import PROJECT_NAME
+from vladrivebench import PROJECT_NAME
 
 hookspec = pluggy.HookspecMarker(PROJECT_NAME)
 
@@ -108,7 +108,7 @@ def register_conditions(register: Register) -> None:
     """Register CoT intervention conditions.
 
     ``register(name, factory, description="")``: ``factory()`` returns a condition: an object satisfying
-    ``vladrivebench.conditions.Condition`` (e.g. a ``TextCondition``), whose ``name`` equals ``name``.
+    ``vladrivebench._intervention.conditions.Condition`` (e.g. a ``TextCondition``), whose ``name`` equals ``name``.
     """
 
 

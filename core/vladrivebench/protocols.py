@@ -1,17 +1,19 @@
-"""The core's whole contract: what a simulator, a model, a controller, a labeler, a metric and an executor are.
+"""The core's whole contract: what a simulator, a model, a controller, a labeler, a metric, an executor, a
+condition and a paradigm are, and the optional capabilities a model may add.
 
 Plugins implement these protocols structurally (no base class needed). Every random draw is made from an
-RNG that the caller passes in, so a pinned seed reproduces any step exactly.
+RNG that the caller passes in, so a pinned seed reproduces any step exactly. Optional capabilities are their
+own small protocols: the core checks ``isinstance(model, TokenCounter)`` (etc.), never an undocumented
+attribute.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
-import numpy as np
-
-from .records import (
+from vladrivebench.records import (
     Control,
     CoT,
     CoTFormat,
@@ -23,8 +25,13 @@ from .records import (
     TrajectorySpec,
 )
 
-if TYPE_CHECKING:
-    from .scenarios import Scenario
+if TYPE_CHECKING:  # numpy only for annotations: `vdb list-plugins` imports this module
+    import numpy as np
+
+    from vladrivebench._scenarios.spec import Scenario
+
+Injection = str | dict[str, str]
+"""What replaces a CoT: one string (sentence formats) or slot → text in the model's slot order (slots)."""
 
 
 @runtime_checkable
@@ -150,3 +157,132 @@ class Executor(Protocol):
         """Yield ``worker(job)`` for every job."""
         ...
 
+
+
+# -- optional model capabilities ----------------------------------------------------------------------
+@runtime_checkable
+class TokenCounter(Protocol):
+    """A model that counts tokens with its own tokenizer.
+
+    Conditions that match another text's length (``repeat`` with ``match``) and the ``max_tokens`` check of
+    injected texts use it; without it the benchmark counts whitespace-separated words.
+    """
+
+    def count_tokens(self, text: str) -> int:
+        """How many tokens ``text`` takes in this model's CoT."""
+        ...
+
+
+@runtime_checkable
+class CoTExtras(Protocol):
+    """A model that exposes JSON-able internals of its own CoT (logged on ``/extras`` at every step).
+
+    The scripted reference model uses it to record the errors it made on purpose, so labels can be checked
+    against what it actually wrote.
+    """
+
+    def cot_extras(self, cot: CoT) -> Mapping[str, Any] | None:
+        """JSON-able facts about ``cot`` (or ``None``)."""
+        ...
+
+
+@runtime_checkable
+class BatchedModel(Protocol):
+    """A model that runs one call for many episodes' observations at once (lockstep batching).
+
+    Each list is in order and as long as ``observations``; ``rngs[i]`` is episode i's pinned RNG for the
+    call, so a batched call must give every episode the draws it would have had alone. Results may differ
+    from the unbatched methods in floating point only.
+    """
+
+    def generate_cot_batch(self, observations: Sequence[Observation],
+                           rngs: Sequence[np.random.Generator]) -> list[CoT]:
+        """``generate_cot`` for each observation."""
+        ...
+
+    def decode_action_batch(self, observations: Sequence[Observation], cots: Sequence[CoT],
+                            rngs: Sequence[np.random.Generator]) -> list[Trajectory]:
+        """``decode_action`` for each (observation, CoT) pair."""
+        ...
+
+
+# -- intervention conditions --------------------------------------------------------------------------------
+@dataclass
+class ConditionContext:
+    """Everything a condition may read to build its injection at one step.
+
+    ``own`` is the model's own CoT at this step; ``harvested`` maps a harvest condition's name to the
+    injection taken from a baseline episode; ``resolve(name)`` gives another condition's injection at the
+    same step (memoised per step); ``count_tokens`` is the model's tokenizer when it exposes one
+    (``model.count_tokens(text)``), else a whitespace word count; ``model_name`` is used in messages.
+    """
+
+    cot_format: CoTFormat
+    own: CoT
+    resolve: Callable[[str], Injection]
+    harvested: Mapping[str, Injection] = field(default_factory=dict)
+    count_tokens: Callable[[str], int] = lambda text: len(text.split())
+    model_name: str = "model"
+
+    @property
+    def slots(self) -> tuple[str, ...]:
+        return tuple(self.cot_format.slots)
+
+
+@runtime_checkable
+class Condition(Protocol):
+    """What the intervention protocol needs from a condition (plugins may implement their own).
+
+    ``intent`` is one of :data:`INTENTS`; ``requires()`` names the conditions it builds on (checked for
+    existence and cycles before a run); ``per_step`` says whether the injection changes from step to step
+    (it reads the model's own CoT); ``resolve(ctx)`` returns the injection or raises
+    :class:`ConditionError`.
+    """
+
+    name: str
+    kind: str
+    intent: str
+    description: str
+
+    def requires(self) -> tuple[str, ...]: ...
+
+    @property
+    def per_step(self) -> bool: ...
+
+    def resolve(self, ctx: ConditionContext) -> Injection: ...
+
+    def to_json(self) -> dict[str, Any]: ...
+
+
+
+
+# -- intervention paradigms ---------------------------------------------------------------------------
+@runtime_checkable
+class Paradigm(Protocol):
+    """One way of intervening on the CoT and measuring what it does (open-loop, closed-loop, safety, …).
+
+    A paradigm plans the episodes of an intervention run, gives the step policy each planned episode runs
+    under, analyses the logged episodes (never live objects) into JSON-able results, and turns those results
+    into tables and plots. ``name`` is what ``vdb intervene --mode`` takes. See
+    :mod:`vladrivebench.intervention` for the planning and analysis helpers.
+    """
+
+    name: str
+    description: str
+
+    def check(self, config: Any, scenario: Any) -> None:
+        """Raise a :class:`~vladrivebench.errors.VdbError` when this paradigm cannot run ``config`` on the
+        route ``scenario`` (before anything is written)."""
+        ...
+
+    def plan(self, config: Any) -> list[Any]:
+        """The episodes of the run (:class:`vladrivebench.intervention.PlannedEpisode`), in a fixed order."""
+        ...
+
+    def analyse(self, config: Any, episodes: Mapping[Any, Any]) -> dict[str, Any]:
+        """JSON-able results of the run from its logged episodes, keyed by the planned episodes' keys."""
+        ...
+
+    def tables(self, results: Mapping[str, Any]) -> list[Any]:
+        """Tables and plots (:mod:`vladrivebench.metrics`) for ``results`` as :meth:`analyse` returned them."""
+        ...

@@ -6,13 +6,18 @@ from pathlib import Path
 
 import numpy as np
 from vdb_metric_example import plugin
-from vladrivebench import builtins
+from vladrivebench import Actor, Control, CoT, EgoState, GroundTruth, Labels, Observation, Trajectory
 from vladrivebench.labels import LabelStore, label_key
-from vladrivebench.logs import EpisodeWriter
 from vladrivebench.metrics import AnalysisDataset
-from vladrivebench.plugins import Registry
-from vladrivebench.records import Actor, Control, CoT, EgoState, GroundTruth, Labels, Observation, Trajectory
-from vladrivebench.report import compute_all
+from vladrivebench.testing import (
+    EpisodeWriter,
+    Registry,
+    compute_all,
+    core_plugin,
+    label_items,
+    load_dataset,
+    read_directory,
+)
 
 
 def write(path: Path, mention_below: float | None) -> None:
@@ -33,14 +38,12 @@ def write(path: Path, mention_below: float | None) -> None:
 def test_first_mention_table(tmp_path):
     for i, below in enumerate([30.0, 20.0, 10.0, None]):
         write(tmp_path / f"e{i}.mcap", below)
-    from vladrivebench.analysis import label_items, load_dataset, read_directory
-
     episodes, _ = read_directory(tmp_path)
     store = LabelStore(tmp_path, "hand")
     store.add([(item, label_key(item, "hand", "1"), Labels(target_mentioned=item.text.startswith("pedestrian")))
                for _, _, item in label_items(episodes)], "1")
     dataset: AnalysisDataset = load_dataset(tmp_path)
-    registry = Registry([("core", builtins), ("first-mention", plugin)], entry_points=False)
+    registry = Registry([core_plugin(), ("first-mention", plugin)], entry_points=False)
     sections = compute_all(dataset, registry)
     names = [s.metric for s in sections]
     assert names.index("first_mention") == names.index("mention_rate") + 1

@@ -1,6 +1,6 @@
 """The metric: per episode, the distance to the target at the first step whose CoT mentions it.
 
-A metric receives a :class:`vladrivebench.metrics.AnalysisDataset` and returns :class:`Table` and
+A metric receives a :class:`vladrivebench._analysis.tables.AnalysisDataset` and returns :class:`Table` and
 :class:`Plot` records whose cells carry their counts; it reads logs and labels only.
 """
 
@@ -9,8 +9,17 @@ from __future__ import annotations
 import statistics
 from typing import Any
 
-from vladrivebench.analysis import model_of, observational, scenario_group, step_views
-from vladrivebench.metrics import MIN_COUNT, MISSING, Cell, Row, Table
+from vladrivebench.metrics import (
+    MIN_COUNT,
+    MISSING,
+    Cell,
+    Row,
+    Table,
+    model_of,
+    observational,
+    scenario_group,
+    step_views,
+)
 
 
 class FirstMentionDistance:

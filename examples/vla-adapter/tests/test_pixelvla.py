@@ -27,7 +27,7 @@ def site(tmp_path_factory) -> str:
 
 
 def vdb(args, site):
-    return subprocess.run([sys.executable, "-m", "vladrivebench.cli", *args], capture_output=True, text=True,
+    return subprocess.run([sys.executable, "-m", "vladrivebench", *args], capture_output=True, text=True,
                           env=dict(os.environ, PYTHONPATH=site), timeout=300)
 
 
@@ -62,7 +62,7 @@ def test_selfsplice_is_exact_and_the_cot_drives_the_action():
         from vdb_model_pixelvla.model import PixelVLA
     finally:
         sys.path.remove(str(EXAMPLE))
-    from vladrivebench.records import EgoState, GroundTruth, Observation
+    from vladrivebench import EgoState, GroundTruth, Observation
 
     model = PixelVLA(cruise_speed=6.0, red_threshold=0.002, obstacle_threshold=0.004, coupling=1.0)
     image = np.full((80, 160, 3), 72, np.uint8)

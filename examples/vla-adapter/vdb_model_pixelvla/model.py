@@ -14,7 +14,7 @@ import hashlib
 import json
 
 import numpy as np
-from vladrivebench.records import CoT, CoTFormat, Observation, Trajectory, TrajectorySpec
+from vladrivebench import CoT, CoTFormat, Observation, Trajectory, TrajectorySpec
 
 STOP_WORDS = ("stop", "brake", "slow", "yield")
 GO_WORDS = ("accelerate", "speed up", "maintain", "keep", "continue", "proceed")
@@ -49,7 +49,7 @@ class PixelVLA:
 
     def __init__(self, cruise_speed: float, red_threshold: float, obstacle_threshold: float, coupling: float):
         if not 0.0 <= coupling <= 1.0:
-            from vladrivebench.errors import ConfigError
+            from vladrivebench import ConfigError
 
             raise ConfigError(f"model 'pixel-vla': option 'coupling' must be in [0, 1], got {coupling}")
         self.cruise_speed, self.coupling = cruise_speed, coupling

@@ -11,11 +11,17 @@ from pathlib import Path
 import pytest
 from vdb_executor_ray import plugin
 from vdb_executor_ray.executor import RayExecutor
-from vladrivebench import builtins
-from vladrivebench.errors import ConfigError
+from vladrivebench import ConfigError
 from vladrivebench.executors import JobFailure, SequentialExecutor
-from vladrivebench.plugins import Registry
-from vladrivebench.sweep import ComponentSpec, RegistrySpec, RunConfig, make_jobs, run_sweep
+from vladrivebench.testing import (
+    ComponentSpec,
+    Registry,
+    RegistrySpec,
+    RunConfig,
+    core_plugin,
+    make_jobs,
+    run_sweep,
+)
 
 CORE_TESTS = Path(__file__).resolve().parents[3] / "tests"  # the core's fake components (runner_fakes.py)
 
@@ -71,7 +77,7 @@ def test_each_actor_builds_its_model_once(local_ray, tmp_path):
 
 
 def test_sweep_on_ray_gives_the_same_bytes_as_sequential(local_ray, tmp_path):
-    registry = Registry([("core", builtins), ("fakes", fakes), ("ray", plugin)], entry_points=False)
+    registry = Registry([core_plugin(), ("fakes", fakes), ("ray", plugin)], entry_points=False)
     config = RunConfig(ComponentSpec("model", "echo"), ComponentSpec("simulator", "line"),
                        ComponentSpec("controller", "speed"), fakes.SCENARIOS, (0, 1))
     run_sweep(config, tmp_path / "seq", executor=SequentialExecutor(), registry=registry)
@@ -100,7 +106,7 @@ def test_bad_options_are_one_line_errors(options, message):
 
 
 def test_registration_does_not_import_ray():
-    code = ("import sys; from vladrivebench.plugins import Registry; from vdb_executor_ray import plugin; "
+    code = ("import sys; from vladrivebench._engine.registry import Registry; from vdb_executor_ray import plugin; "
             "r = Registry([('ray', plugin)], entry_points=False); print(r.names('executor'), 'ray' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "['ray'] False"

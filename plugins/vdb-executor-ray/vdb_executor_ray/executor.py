@@ -4,7 +4,7 @@ Each actor is its own process that lives for the whole sweep, so the sweep's wor
 model and simulator once per actor and reuses them for every episode it is given — the same contract as
 the core's ``process`` executor, on one machine or a cluster. Results are yielded as they finish; a job
 whose actor dies (a crash in a native library, a lost node) comes back as a
-:class:`~vladrivebench.executors.JobFailure` and the actor is replaced.
+:class:`~vladrivebench._engine.executors.JobFailure` and the actor is replaced.
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ from collections import deque
 from collections.abc import Callable, Iterable, Iterator
 from typing import Any
 
-from vladrivebench.errors import ConfigError
+from vladrivebench import ConfigError
 from vladrivebench.executors import JobFailure, check_workers, failure_of
 
 

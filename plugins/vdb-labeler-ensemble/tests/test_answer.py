@@ -9,7 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from vdb_labeler_ensemble.answer import ANSWER_FIELDS, InvalidAnswer, parse_answer_text, parse_reply
 from vdb_labeler_ensemble.backends import Reply
-from vladrivebench.records import LIGHT_COLOURS, STATED_ACTIONS
+from vladrivebench import LIGHT_COLOURS, STATED_ACTIONS
 
 SLOTS = ["scene", "objects", "decision"]
 valid_answers = st.fixed_dictionaries({

@@ -14,7 +14,7 @@ from vdb_labeler_ensemble.backends import (
     parse_backends,
     read_reply,
 )
-from vladrivebench.errors import ConfigError
+from vladrivebench import ConfigError
 
 
 def test_the_documented_examples_parse():

@@ -11,8 +11,8 @@ import pytest
 import vdb_labeler_ensemble.plugin as plugin
 from vdb_labeler_ensemble.labeler import EnsembleLabeler
 from vdb_labeler_ensemble.testing import ENVIRON, KEYS, Script, answer, backend_specs, item
-from vladrivebench.errors import ConfigError, VdbError
-from vladrivebench.plugins import Registry
+from vladrivebench import ConfigError, VdbError
+from vladrivebench.testing import Registry
 
 
 def registry() -> Registry:
@@ -114,7 +114,7 @@ def test_a_corrupt_cache_file_is_one_line(tmp_path):
 
 def test_registration_imports_nothing_heavy():
     code = ("import sys, vdb_labeler_ensemble.plugin as p; "
-            "from vladrivebench.plugins import Registry; "
+            "from vladrivebench._engine.registry import Registry; "
             "r = Registry(plugins=[('ensemble', p)], entry_points=False); assert r.names('labeler') == ['ensemble']; "
             "heavy = [m for m in ('httpx', 'sqlite3', 'numpy', 'vdb_labeler_ensemble.labeler') if m in sys.modules]; "
             "print(heavy)")

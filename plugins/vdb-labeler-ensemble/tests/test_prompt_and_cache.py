@@ -12,7 +12,7 @@ from vdb_labeler_ensemble.cache import ResponseCache, cache_key
 from vdb_labeler_ensemble.labeler import EnsembleLabeler
 from vdb_labeler_ensemble.prompt import default_prompt_path, describe_context, load_prompt
 from vdb_labeler_ensemble.testing import EMPTY, PEDESTRIAN, item
-from vladrivebench.errors import ConfigError
+from vladrivebench import ConfigError
 
 
 def test_the_shipped_prompt_is_v1_and_its_examples_follow_the_schema():

@@ -8,8 +8,8 @@ import socket
 import pytest
 import vdb_labeler_ensemble.plugin as plugin
 from vdb_labeler_ensemble.testing import ENVIRON, KEYS, PEDESTRIAN, Script, Status, answer, backend_specs
-from vladrivebench.cli import main
 from vladrivebench.testing import isolated_registry
+from vladrivebench.testing import run_cli as main
 
 
 @pytest.fixture

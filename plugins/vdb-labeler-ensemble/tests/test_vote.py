@@ -9,7 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from vdb_labeler_ensemble.answer import ANSWER_FIELDS
 from vdb_labeler_ensemble.vote import MISSING, decide, resolve, top_values
-from vladrivebench.records import LIGHT_COLOURS, STATED_ACTIONS
+from vladrivebench import LIGHT_COLOURS, STATED_ACTIONS
 
 value = st.one_of(st.sampled_from(STATED_ACTIONS), st.booleans(), st.none())
 votes = st.lists(value, min_size=1, max_size=9)

@@ -5,7 +5,7 @@ a JSONL file of CoTs without the ``vdb`` command.
     python -m vdb_labeler_ensemble render cots.jsonl --id 3 [--prompt my_prompt.toml]
     python -m vdb_labeler_ensemble label cots.jsonl -o labelled.jsonl --backends SPEC[,SPEC…] [--dry-run]
 
-The JSONL format is the core's (``vladrivebench.labels.read_jsonl``): one object a line with ``id``,
+The JSONL format is the core's (``vladrivebench._analysis.labels.read_jsonl``): one object a line with ``id``,
 ``text`` and/or ``slots``, and ``context``. Mistakes print one line and exit with status 2.
 """
 
@@ -16,7 +16,7 @@ import json
 import sys
 from collections.abc import Sequence
 
-from vladrivebench.errors import ConfigError, VdbError
+from vladrivebench import ConfigError, VdbError
 
 PROG = "python -m vdb_labeler_ensemble"
 

@@ -12,7 +12,7 @@ import re
 from collections.abc import Sequence
 from typing import Any
 
-from vladrivebench.records import LIGHT_COLOURS, STATED_ACTIONS
+from vladrivebench import LIGHT_COLOURS, STATED_ACTIONS
 
 from .backends import CUT_OFF_FINISHES, Reply
 

@@ -20,7 +20,7 @@ from dataclasses import dataclass, field, replace
 from typing import Any
 from urllib.parse import parse_qsl, urlsplit
 
-from vladrivebench.errors import ConfigError
+from vladrivebench import ConfigError
 
 SPEC_SYNTAX = "KIND:MODEL[@BASE_URL][?key_env=VAR&name=ALIAS&temperature=T&max_tokens=N&json_mode=true|false]"
 SPEC_OPTIONS = ("key_env", "name", "temperature", "max_tokens", "json_mode")

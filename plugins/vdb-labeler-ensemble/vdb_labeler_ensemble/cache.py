@@ -19,7 +19,7 @@ from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
-from vladrivebench.errors import ConfigError
+from vladrivebench import ConfigError
 
 from .backends import Reply
 

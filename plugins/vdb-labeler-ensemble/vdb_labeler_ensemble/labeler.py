@@ -25,8 +25,7 @@ from urllib.parse import urlsplit
 
 import httpx
 import numpy as np
-from vladrivebench.errors import ConfigError
-from vladrivebench.records import LabelInput, Labels
+from vladrivebench import ConfigError, LabelInput, Labels
 
 from . import LABELER_NAME, __version__
 from .answer import InvalidAnswer, parse_reply

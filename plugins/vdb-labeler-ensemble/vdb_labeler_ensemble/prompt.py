@@ -19,9 +19,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from vladrivebench.errors import ConfigError
-from vladrivebench.options import load_toml
-from vladrivebench.records import LabelInput
+from vladrivebench import ConfigError, LabelInput, load_toml
 
 from .answer import InvalidAnswer, parse_answer_text, schema_text
 
@@ -154,7 +152,7 @@ def describe_cot(text: str, slots: Mapping[str, str]) -> str:
 def describe_context(context: Mapping[str, Any]) -> str:
     """The ground truth of one step as short lines a model reads easily.
 
-    Reads the keys of ``vladrivebench.labels.context_from_step``; any other key is shown as JSON.
+    Reads the keys of ``vladrivebench._analysis.labels.context_from_step``; any other key is shown as JSON.
     """
     lines = [_critical_line(context)]
     if context.get("light_state"):

@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from typing import Any
 
-from vladrivebench.records import LabelInput
+from vladrivebench import LabelInput
 
 # -- what the server can be told to do -------------------------------------------------------------------
 

@@ -10,9 +10,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from vdb_labeler_lexicon import plugin
 from vdb_labeler_lexicon.labeler import LexiconLabeler
-from vladrivebench.errors import ConfigError
+from vladrivebench import STATED_ACTIONS, ConfigError, LabelInput
 from vladrivebench.labels import agreement, read_jsonl
-from vladrivebench.records import STATED_ACTIONS, LabelInput
 from vladrivebench.testing import isolated_registry
 
 GOLD = Path(__file__).resolve().parents[3] / "tests" / "data" / "gold_labels.jsonl"

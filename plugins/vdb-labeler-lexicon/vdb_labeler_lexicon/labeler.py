@@ -20,7 +20,7 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from typing import Any
 
-from vladrivebench.records import LabelInput, Labels
+from vladrivebench import LabelInput, Labels
 
 from . import rules
 
@@ -41,7 +41,7 @@ class LexiconLabeler:
 
     def __init__(self, filter_phantom_car: bool = False):
         if not isinstance(filter_phantom_car, bool):
-            from vladrivebench.errors import ConfigError
+            from vladrivebench import ConfigError
 
             raise ConfigError(f"labeler 'lexicon': filter_phantom_car must be true or false, got {filter_phantom_car!r}")
         self.filter_phantom_car = filter_phantom_car

@@ -9,9 +9,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from vladrivebench.plugins import get_registry
-from vladrivebench.records import Control
-from vladrivebench.scenarios import load_suite
+from vladrivebench import Control
+from vladrivebench.testing import get_registry
+from vladrivebench.world import load_suite
 
 DISTANCES = (18.0, 13.0, 8.0)  # within 3 s of driving on at 7 m/s
 SPEED = 7.0
@@ -83,14 +83,14 @@ def test_the_models_drive_the_scenario_closed_loop(models, name, controller, sce
     beside the lane (C.2: the previous ``qa`` drifted 3.4 m across and stopped there)."""
     import dataclasses
 
-    from vladrivebench.controllers import MPCController, PIDController
-    from vladrivebench.runner import run_episode
+    from vladrivebench.episodes import build_component
+    from vladrivebench.testing import run_episode
 
     scenario = load_suite()[scenario_id]
     if scenario.blocking or scenario.light is not None:
         scenario = dataclasses.replace(scenario, max_time_s=25.0)  # long enough to get there and stop
     simulator = get_registry().create("simulator", "kinematic", {"width": 160, "height": 80})
-    control = MPCController() if controller == "mpc" else PIDController()
+    control = build_component("controller", "mpc") if controller == "mpc" else build_component("controller", "pid")
     result = run_episode(models[name], simulator, control, scenario, 0)
     simulator.close()
     assert result.collisions == 0 and result.violations == 0, result

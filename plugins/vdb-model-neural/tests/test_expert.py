@@ -9,7 +9,7 @@ from hypothesis import example, given, settings
 from hypothesis import strategies as st
 from vdb_model_neural import expert
 from vdb_model_neural.kv_model import controls_to_trajectory, normalise_controls, rollout
-from vladrivebench.records import Actor, EgoState, GroundTruth, Observation
+from vladrivebench import Actor, EgoState, GroundTruth, Observation
 
 STRAIGHT = tuple((float(i), 0.0) for i in range(51))
 
@@ -195,7 +195,7 @@ def test_a_slow_step_near_a_salient_obstacle_is_also_learnt_at_speed_braking_har
 @given(seed=st.integers(0, 10_000), scenario_id=st.sampled_from(["P.1", "P.4", "C.1", "C.2", "TL.1-red", "S.1"]))
 def test_variants_keep_the_critical_object_and_a_green_light_stands_only_beyond_the_obstacles(seed, scenario_id):
     from vdb_model_neural.data import variant
-    from vladrivebench.scenarios import load_suite
+    from vladrivebench.world import load_suite
 
     scenario = load_suite()[scenario_id]
     changed = variant(scenario, np.random.default_rng(seed))

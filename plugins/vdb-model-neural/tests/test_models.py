@@ -14,8 +14,7 @@ from vdb_model_neural import plugin, toolkit
 from vdb_model_neural.common import WeightsError, bundle_paths
 from vdb_model_neural.kv_model import KVModel
 from vdb_model_neural.qa_model import QAModel
-from vladrivebench.errors import ConfigError, VdbError
-from vladrivebench.records import EgoState, GroundTruth, Observation
+from vladrivebench import ConfigError, EgoState, GroundTruth, Observation, VdbError
 from vladrivebench.testing import isolated_registry
 
 
@@ -188,7 +187,7 @@ def test_loading_never_unpickles(monkeypatch):
 
 
 def test_registration_is_light_and_options_are_checked():
-    code = ("import sys, vdb_model_neural.plugin as p; from vladrivebench.plugins import Registry; "
+    code = ("import sys, vdb_model_neural.plugin as p; from vladrivebench._engine.registry import Registry; "
             "r = Registry([('neural', p)], entry_points=False); print(r.names('model')); "
             "print(any(m in sys.modules for m in ('torch', 'transformers', 'tokenizers')))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout

@@ -9,7 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from transformers import LlamaConfig, LlamaForCausalLM
 from vdb_model_neural import toolkit
-from vladrivebench.errors import ConfigError, VdbError
+from vladrivebench import ConfigError, VdbError
 
 VOCAB, START, END, PAD = 40, 1, 2, 0
 

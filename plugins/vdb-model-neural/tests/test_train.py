@@ -12,7 +12,7 @@ from vdb_model_neural.common import bundle_paths, save_bundle
 from vdb_model_neural.data import Dataset
 from vdb_model_neural.kv_model import KVModel
 from vdb_model_neural.qa_model import QAModel
-from vladrivebench.records import EgoState, GroundTruth, Observation
+from vladrivebench import EgoState, GroundTruth, Observation
 
 
 def tiny_dataset(n: int = 24) -> Dataset:

@@ -17,8 +17,7 @@ import numpy as np
 import torch
 from torch import nn
 from torch.nn import functional as F
-from vladrivebench.errors import ConfigError, VdbError
-from vladrivebench.records import NAV_COMMANDS
+from vladrivebench import NAV_COMMANDS, ConfigError, VdbError
 
 IMAGE_HEIGHT, IMAGE_WIDTH = 80, 160
 """The encoder's input size (the kinematic camera's default); other sizes are resized by area averaging."""

@@ -19,8 +19,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from vladrivebench.records import CoT, CoTFormat, Observation, Trajectory, TrajectorySpec
-from vladrivebench.scenarios import LightSpec
+from vladrivebench import CoT, CoTFormat, LightSpec, Observation, Trajectory, TrajectorySpec
 
 from .common import IMAGE_HEIGHT, IMAGE_WIDTH, image_batch
 from .expert import (
@@ -284,7 +283,7 @@ def generate(seed: int, episodes: int, every: int = 2, scenarios: Iterable | Non
 
 
 def _training_scenarios() -> list:
-    from vladrivebench.scenarios import load_suite
+    from vladrivebench.world import load_suite
 
     return [s for s in load_suite().values() if s.family in TRAIN_FAMILIES
             for _ in range(FAMILY_WEIGHTS.get(s.family, 1))]
@@ -306,9 +305,8 @@ _SIMULATOR = None
 
 def _drive_episode(job: tuple) -> list[dict]:
     """One expert episode of a randomised variant; returns the samples kept."""
-    from vladrivebench.controllers import MPCController, PIDController
-    from vladrivebench.plugins import get_registry
-    from vladrivebench.runner import EpisodeFailure, run_episode
+    from vladrivebench.episodes import build_component
+    from vladrivebench.testing import EpisodeFailure, get_registry, run_episode
 
     global _SIMULATOR
     seed, episode, scenario, every, max_time_s = job
@@ -322,7 +320,7 @@ def _drive_episode(job: tuple) -> list[dict]:
     late = float(rng.uniform(2.0, 25.0)) if rng.random() < LATE_SHARE else None
     wander = bool(rng.random() < WANDER_SHARE)
     expert = ExpertModel(rng, float(rng.uniform(5.5, 9.5)), kept.append, late_reaction=late, wander=wander)
-    controller = MPCController() if episode % 2 else PIDController()
+    controller = build_component("controller", "mpc") if episode % 2 else build_component("controller", "pid")
     try:
         run_episode(expert, _SIMULATOR, controller, scenario, int(rng.integers(1 << 30)))
     except EpisodeFailure as failure:

@@ -18,7 +18,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from vladrivebench.records import GroundTruth, Observation
+from vladrivebench import GroundTruth, Observation
 
 DT = 0.1
 HORIZON_STEPS = 30

@@ -16,8 +16,7 @@ import numpy as np
 import torch
 from torch import nn
 from torch.nn import functional as F
-from vladrivebench.errors import ConfigError
-from vladrivebench.records import CoT, CoTFormat, Observation, Trajectory, TrajectorySpec
+from vladrivebench import ConfigError, CoT, CoTFormat, Observation, Trajectory, TrajectorySpec
 
 from . import toolkit
 from .common import (

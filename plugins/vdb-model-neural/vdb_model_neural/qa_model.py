@@ -23,8 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 from torch import nn
-from vladrivebench.errors import ConfigError
-from vladrivebench.records import CoT, CoTFormat, Observation, Trajectory, TrajectorySpec
+from vladrivebench import ConfigError, CoT, CoTFormat, Observation, Trajectory, TrajectorySpec
 
 from . import toolkit
 from .common import (

@@ -78,7 +78,7 @@ def training_table() -> str:
 
 
 def run_vdb(args: list[str]) -> str:
-    command = [sys.executable, "-m", "vladrivebench.cli", *args]
+    command = [sys.executable, "-m", "vladrivebench", *args]
     print("$ vdb " + " ".join(args), file=sys.stderr, flush=True)
     started = time.perf_counter()
     done = subprocess.run(command, capture_output=True, text=True)

@@ -33,7 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 from transformers import DynamicCache
-from vladrivebench.errors import ConfigError, VdbError
+from vladrivebench import ConfigError, VdbError
 
 SPLICE_MODES = ("sequential", "prefill")
 

@@ -329,6 +329,6 @@ def train_command(model: str, seed: int, episodes: int, steps: int | None, out: 
 
 
 if __name__ == "__main__":  # pragma: no cover
-    from vladrivebench.cli import main
+    import subprocess
 
-    sys.exit(main(["train-neural", *sys.argv[1:]]))
+    sys.exit(subprocess.call([sys.executable, "-m", "vladrivebench", "train-neural", *sys.argv[1:]]))

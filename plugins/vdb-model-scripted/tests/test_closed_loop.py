@@ -6,9 +6,9 @@ import pytest
 from vdb_model_scripted.model import ScriptedModel
 from vdb_model_scripted.reading import named_kinds
 from vdb_sim_kinematic.plugin import make_simulator  # a test dependency (the `test` extra)
-from vladrivebench.controllers import MPCController, PIDController
-from vladrivebench.runner import run_episode
-from vladrivebench.scenarios import load_suite
+from vladrivebench.episodes import build_component
+from vladrivebench.testing import run_episode
+from vladrivebench.world import load_suite
 
 
 @pytest.fixture(scope="module")
@@ -22,7 +22,7 @@ def drive(suite, scenario_id, model, controller=None, seed=0, max_steps=220):
     def on_step(obs, cot, trajectory, control, extras):
         steps.append((obs, cot, trajectory, control, extras))
 
-    result = run_episode(model, make_simulator(render=False), controller or PIDController(), suite[scenario_id],
+    result = run_episode(model, make_simulator(render=False), controller or build_component("controller", "pid"), suite[scenario_id],
                          seed, on_step=on_step, max_steps=max_steps)
     return result, steps
 
@@ -42,7 +42,7 @@ def test_stops_for_the_pedestrian_and_says_so(suite):
 
 
 def test_stops_at_the_red_light_with_the_mpc_controller(suite):
-    result, steps = drive(suite, "TL.1-red", ScriptedModel(alpha=1.0, cot_format="qa"), MPCController())
+    result, steps = drive(suite, "TL.1-red", ScriptedModel(alpha=1.0, cot_format="qa"), build_component("controller", "mpc"))
     assert result.collisions == 0 and not any(obs.ground_truth.violations for obs, *_ in steps)
     final = steps[-1][0]
     assert final.ego.speed < 0.05 and 0.0 < final.ground_truth.distance_to_critical < 3.0

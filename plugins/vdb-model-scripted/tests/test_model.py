@@ -10,10 +10,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from vdb_model_scripted.model import ScriptedModel, cot_truth
 from vdb_model_scripted.testing import STRAIGHT_ROUTE, make_observation
-from vladrivebench.conditions import PAPER_TEXTS
-from vladrivebench.intervention import gate_record
-from vladrivebench.protocols import VLAModel
-from vladrivebench.rng import step_rng
+from vladrivebench import VLAModel, step_rng
+from vladrivebench.intervention import PAPER_TEXTS, gate_record
 
 KINDS = [None, "pedestrian", "car", "traffic_light", "stop_sign"]
 
@@ -148,7 +146,7 @@ def test_a_mapping_given_to_a_sentence_model_is_joined_in_order():
     (42, "a CoT must be a string or a mapping"),
 ])
 def test_bad_injections_are_one_line_errors(bad, message):
-    from vladrivebench.errors import ConfigError
+    from vladrivebench import ConfigError
 
     with pytest.raises(ConfigError, match=message) as info:
         ScriptedModel(cot_format="qa").splice_cot(make_observation(), bad, np.random.default_rng(0))
@@ -156,7 +154,7 @@ def test_bad_injections_are_one_line_errors(bad, message):
 
 
 def test_a_cot_without_scripted_state_is_read_from_its_text():
-    from vladrivebench.records import CoT
+    from vladrivebench import CoT
 
     model, obs = ScriptedModel(alpha=1.0), make_observation()
     plain = CoT("Stop for the pedestrian in the lane because it is blocking the lane.")

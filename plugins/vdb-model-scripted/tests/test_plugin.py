@@ -8,8 +8,8 @@ import sys
 import pytest
 from vdb_model_scripted import plugin
 from vdb_model_scripted.model import ScriptedModel
-from vladrivebench.errors import ConfigError
-from vladrivebench.plugins import Registry
+from vladrivebench import ConfigError
+from vladrivebench.testing import Registry
 
 
 def registry() -> Registry:
@@ -49,7 +49,7 @@ def test_bad_options_are_one_line_config_errors(options, message):
 
 
 def test_registering_imports_nothing_heavy():
-    code = ("import sys; from vladrivebench.plugins import Registry; import vdb_model_scripted.plugin as p; "
+    code = ("import sys; from vladrivebench._engine.registry import Registry; import vdb_model_scripted.plugin as p; "
             "Registry([('scripted', p)], entry_points=False); "
             "print(sorted(m for m in ('torch', 'transformers', 'libsumo', 'scipy', 'vdb_model_scripted.model') "
             "if m in sys.modules))")
@@ -58,9 +58,9 @@ def test_registering_imports_nothing_heavy():
 
 
 def test_the_cli_reports_a_bad_option_on_one_line_with_status_2(tmp_path):
-    from vladrivebench.cli import main
+    from vladrivebench.testing import run_cli as main
 
-    code = ("import sys; from vladrivebench.cli import main; "
+    code = ("import sys; from vladrivebench.testing import run_cli as main; "
             f"sys.exit(main(['run', '--model', 'scripted', '--model-opt', 'alpha=3', '--scenarios', 'E.1', "
             f"'--seeds', '1', '--out', {str(tmp_path / 'out')!r}]))")
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)

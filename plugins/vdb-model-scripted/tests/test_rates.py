@@ -13,7 +13,7 @@ from vdb_model_scripted.model import ScriptedModel, cot_truth
 from vdb_model_scripted.reading import DECELERATING, named_kinds, stated_intents
 from vdb_model_scripted.testing import make_observation
 from vdb_model_scripted.writing import CONTRADICT, HALLUCINATE, LIGHT_ERROR, MISS, N_DRAWS
-from vladrivebench.rng import step_rng
+from vladrivebench import step_rng
 
 SITUATIONS = [
     dict(),

@@ -19,7 +19,7 @@ from vdb_model_scripted.reading import (
     read_slots,
     stated_intents,
 )
-from vladrivebench.conditions import PAPER_TEXTS
+from vladrivebench.intervention import PAPER_TEXTS
 
 ALPAMAYO_EXPECTED = {"accel": ACCELERATING, "pedestrian": DECELERATING, "car": DECELERATING}
 ORION_EXPECTED = {"accel": ACCELERATING, "pedestrian": DECELERATING, "animal": DECELERATING,

@@ -24,8 +24,15 @@ from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
-from vladrivebench.errors import ConfigError, ModelOutputError
-from vladrivebench.records import CoT, CoTFormat, Observation, Trajectory, TrajectorySpec
+from vladrivebench import (
+    ConfigError,
+    CoT,
+    CoTFormat,
+    ModelOutputError,
+    Observation,
+    Trajectory,
+    TrajectorySpec,
+)
 
 from .policy import (
     DT,

@@ -12,7 +12,7 @@ import math
 from dataclasses import dataclass, replace
 
 import numpy as np
-from vladrivebench.records import Observation
+from vladrivebench import Observation
 
 from .reading import ACCELERATING, DECELERATING, KEEP_DISTANCE, MAINTAINING, CoTReading
 

@@ -8,7 +8,7 @@ feature's stop line or near edge, as the ground truth measures it).
 from __future__ import annotations
 
 import numpy as np
-from vladrivebench.records import Actor, EgoState, GroundTruth, Observation
+from vladrivebench import Actor, EgoState, GroundTruth, Observation
 
 EGO_HALF_LENGTH = EgoState(0.0, 0.0, 0.0, 0.0).length / 2.0
 STRAIGHT_ROUTE = tuple((float(i), 0.0) for i in range(1, 51))

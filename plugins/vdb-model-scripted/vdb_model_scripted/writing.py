@@ -18,7 +18,7 @@ from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
-from vladrivebench.records import LIGHT_COLOURS, Observation
+from vladrivebench import LIGHT_COLOURS, Observation
 
 from .policy import ROAD_USERS, Decision, World, decide, place_along_route
 from .reading import ACCELERATING, DECELERATING, KEEP_DISTANCE, named_kinds

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import math
 
-from vladrivebench.records import Control, Observation
-from vladrivebench.world.bicycle import MAX_WHEEL_ANGLE, WHEELBASE
+from vladrivebench import Control, Observation
+from vladrivebench.world import MAX_WHEEL_ANGLE, WHEELBASE
 
 
 def drive(obs: Observation, speed: float = 6.5, stop_before: float | None = None, decel: float = 3.0) -> Control:

@@ -11,20 +11,16 @@ import pytest
 from kinematic_driving import drive, run
 from vdb_sim_kinematic import plugin
 from vdb_sim_kinematic.simulator import KinematicSimulator
-from vladrivebench import builtins
-from vladrivebench.errors import ConfigError, ScenarioError
-from vladrivebench.plugins import Registry
-from vladrivebench.protocols import Simulator
-from vladrivebench.records import Control, EgoState
-from vladrivebench.scenarios import load_suite, parse_scenario
-from vladrivebench.world.boxes import Box
+from vladrivebench import ConfigError, Control, EgoState, ScenarioError, Simulator
+from vladrivebench.testing import Registry, core_plugin
+from vladrivebench.world import Box, load_suite, parse_scenario
 
 BRAKE = Control(0.0, 0.0, 1.0, 0.0)
 
 
 @pytest.fixture(scope="module")
 def suite():
-    return load_suite(Registry(plugins=[("core", builtins)], entry_points=False))
+    return load_suite(Registry(plugins=[core_plugin()], entry_points=False))
 
 
 @pytest.fixture(scope="module")
@@ -65,7 +61,7 @@ def test_bad_options_are_one_line_config_errors(options, needle):
 
 
 def test_registration_imports_neither_the_simulator_nor_heavy_libraries():
-    probe = ("import sys, vdb_sim_kinematic.plugin as p; from vladrivebench.plugins import Registry; "
+    probe = ("import sys, vdb_sim_kinematic.plugin as p; from vladrivebench._engine.registry import Registry; "
              "Registry(plugins=[('k', p)], entry_points=False); "
              "print(sorted(m for m in ('vdb_sim_kinematic.simulator', 'torch', 'transformers', 'libsumo') "
              "if m in sys.modules))")

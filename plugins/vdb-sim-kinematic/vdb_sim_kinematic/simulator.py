@@ -2,39 +2,39 @@
 
 Each step (dt = 0.1 s):
 
-1. the ego moves under the control (bicycle model of :mod:`vladrivebench.world.bicycle`, or placed at
+1. the ego moves under the control (bicycle model of :func:`vladrivebench.world.apply_control`, or placed at
    ``control.next_state`` for MPC-style controllers);
 2. road users whose trigger the ego has reached start moving; each moves unless that would put it inside
    the ego's box (road users do not walk into a car; a collision is always the ego's doing): the
-   scenario's scripts, :mod:`vladrivebench.world.motion`;
+   scenario's scripts, :mod:`vladrivebench.world._motion`;
 3. the ego's box is tested against every road user's box (separating axes): any overlap is a collision
    and ends the episode;
-4. the shared :class:`~vladrivebench.world.truth.TruthTracker` computes the ground truth, violations and
+4. the shared :class:`~vladrivebench.world._truth.TruthTracker` computes the ground truth, violations and
    the terminal state; the camera renders the image.
 
 Seeds: the only thing a seed changes is the along-route start position of pedestrians and animals,
 shifted uniformly within ±``position_jitter`` metres (default 0.2 m, small enough to keep every crossing
-scenario's outcome; :func:`vladrivebench.world.motion.scripted_users`); cars, lights and signs never move.
+scenario's outcome; :func:`vladrivebench.world._motion.scripted_users`); cars, lights and signs never move.
 ``position_jitter=0`` makes every seed identical.
 """
 
 from __future__ import annotations
 
-from vladrivebench.records import Control, Observation
-from vladrivebench.scenarios import Scenario
-from vladrivebench.world import bicycle
-from vladrivebench.world.boxes import colliding
-from vladrivebench.world.camera import Camera
-from vladrivebench.world.motion import (
+from vladrivebench import Control, Observation, Scenario
+from vladrivebench import world as bicycle  # the bicycle model: DT, apply_control, EGO_LENGTH, EGO_WIDTH
+from vladrivebench.world import (
     WORLD_FEATURES,
+    Camera,
+    RoadGeometry,
+    TruthTracker,
     blank_image,
+    build_road,
     check_supported,
     check_view_options,
+    colliding,
     ego_at_start,
     scripted_users,
 )
-from vladrivebench.world.roads import RoadGeometry, build_road
-from vladrivebench.world.truth import TruthTracker
 
 SUPPORTED_FEATURES = WORLD_FEATURES
 """Every scenario feature (see :meth:`Scenario.features`) this simulator represents: the shared world's."""

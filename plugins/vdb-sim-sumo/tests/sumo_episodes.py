@@ -5,9 +5,9 @@ from __future__ import annotations
 from collections.abc import Callable
 from pathlib import Path
 
-from vladrivebench.records import GroundTruth, Observation
-from vladrivebench.runner import own_cot_policy
-from vladrivebench.scenarios import Scenario, load_scenario_file
+from vladrivebench import GroundTruth, Observation, Scenario
+from vladrivebench.testing import own_cot_policy
+from vladrivebench.world import load_scenario_file
 
 SUITE_DIR = Path(__file__).resolve().parents[3] / "scenarios"
 
@@ -61,9 +61,9 @@ def drive(simulator, scenario: Scenario, seed: int, steps: int, on_step=None) ->
     """Up to ``steps`` observations of the scripted model (PID) driving ``scenario`` on ``simulator``;
     ``on_step(obs)`` runs at each step while the simulation is live."""
     from vdb_model_scripted.plugin import make_scripted
-    from vladrivebench.controllers import PIDController
+    from vladrivebench.episodes import build_component
 
-    model, controller = make_scripted(), PIDController()
+    model, controller = make_scripted(), build_component("controller", "pid")
     obs = simulator.reset(scenario, seed)
     model.reset(seed)
     controller.reset()

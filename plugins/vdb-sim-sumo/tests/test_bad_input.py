@@ -8,14 +8,12 @@ import sys
 import pytest
 import vdb_model_scripted.plugin
 import vdb_sim_sumo.plugin
-import vladrivebench.builtins
 from sumo_episodes import suite_scenario
 from vdb_sim_sumo import session
 from vdb_sim_sumo.session import SumoBusyError, SumoSession, SumoUnavailableError
-from vladrivebench import cli
-from vladrivebench.errors import ConfigError, ScenarioError, VdbError
-from vladrivebench.scenarios import parse_scenario
-from vladrivebench.testing import isolated_registry
+from vladrivebench import ConfigError, ScenarioError, VdbError
+from vladrivebench.testing import core_plugin, isolated_registry, run_cli
+from vladrivebench.world import parse_scenario
 
 
 def one_line(exc: BaseException) -> str:
@@ -116,10 +114,10 @@ def test_a_second_simulation_in_one_process_is_refused_until_the_first_is_closed
 
 
 def test_vdb_run_reports_a_bad_sumo_option_on_one_line_with_status_2(tmp_path, capsys):
-    plugins = (("core", vladrivebench.builtins), ("sumo", vdb_sim_sumo.plugin),
+    plugins = (core_plugin(), ("sumo", vdb_sim_sumo.plugin),
                ("scripted", vdb_model_scripted.plugin))
     with isolated_registry(*plugins):
-        code = cli.main(["run", "--model", "scripted", "--sim", "sumo", "--sim-opt", "pedestrians=crowd",
+        code = run_cli(["run", "--model", "scripted", "--sim", "sumo", "--sim-opt", "pedestrians=crowd",
                          "--scenarios", "P.1", "--seeds", "1", "--out", str(tmp_path / "run"), "--quiet"])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2

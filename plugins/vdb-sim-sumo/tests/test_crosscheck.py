@@ -18,7 +18,7 @@ import pytest
 from sumo_episodes import lockstep, suite, truth_differences
 from vdb_model_scripted.plugin import make_scripted
 from vdb_sim_kinematic.plugin import make_simulator as make_kinematic
-from vladrivebench.controllers import PIDController
+from vladrivebench.episodes import build_component
 
 HORIZON = 200
 DISTANCE_TOL = 1e-3
@@ -46,7 +46,7 @@ def test_sumo_and_kinematic_agree_on_the_ground_truth(scenario, sumo_sim):
         assert len(gt_s.actors) == len(gt_k.actors), where
         assert sumo.light_colour() == gt_k.light_state, where
 
-    pairs = lockstep(scenario, 3, kinematic, sumo, make_scripted(), PIDController(), HORIZON, check)
+    pairs = lockstep(scenario, 3, kinematic, sumo, make_scripted(), build_component("controller", "pid"), HORIZON, check)
     distances = [k.ground_truth.distance_to_critical for k, _ in pairs]
     if scenario.critical is not None:  # the horizon reaches the critical event: passed, or stopped near it
         assert min(distances) < 12.0, f"{scenario.id}: still {min(distances):.1f} m from the critical feature"
@@ -64,5 +64,5 @@ def test_the_camera_sees_the_same_image_in_both_simulators(scenario_id, sumo_sim
             images.append(obs_k.step)
             assert np.array_equal(obs_k.image, obs_s.image), f"{scenario_id} step {obs_k.step}"
 
-    lockstep(suite_scenario(scenario_id), 3, kinematic, sumo, make_scripted(), PIDController(), 150, check)
+    lockstep(suite_scenario(scenario_id), 3, kinematic, sumo, make_scripted(), build_component("controller", "pid"), 150, check)
     assert len(images) == 15

@@ -7,13 +7,11 @@ from __future__ import annotations
 import libsumo
 import vdb_model_scripted.plugin
 import vdb_sim_sumo.plugin
-import vladrivebench.builtins
 from sumo_episodes import suite_scenario
 from vdb_sim_sumo import simulator as simulator_module
-from vladrivebench.executors import ProcessExecutor, SequentialExecutor
-from vladrivebench.plugins import Registry
-from vladrivebench.scenarios import parse_scenario
-from vladrivebench.sweep import ComponentSpec, RunConfig, run_sweep
+from vladrivebench.executors import SequentialExecutor
+from vladrivebench.testing import ComponentSpec, Registry, RunConfig, build, core_plugin, run_sweep
+from vladrivebench.world import parse_scenario
 
 SCENARIOS = ("P.4", "TL.1-red")
 
@@ -31,7 +29,7 @@ def config(cache: str) -> RunConfig:
 
 
 def registry() -> Registry:
-    return Registry([("core", vladrivebench.builtins), ("sumo", vdb_sim_sumo.plugin),
+    return Registry([core_plugin(), ("sumo", vdb_sim_sumo.plugin),
                      ("scripted", vdb_model_scripted.plugin)], entry_points=False)
 
 
@@ -62,7 +60,7 @@ def test_process_and_sequential_executors_give_the_same_episodes(tmp_path, net_c
     assert len(built) == 1  # one simulator for the four episodes ...
     assert calls == {"start": 1, "load": 3}  # ... SUMO started once, reloaded for each further episode
     monkeypatch.undo()
-    parallel = run_sweep(config(net_cache), tmp_path / "process", executor=ProcessExecutor(workers=2),
+    parallel = run_sweep(config(net_cache), tmp_path / "process", executor=build("executor", "process", workers=2),
                          registry=registry())
     assert parallel.failures == {} and len(parallel.results) == 4
     assert logs(parallel) == logs(sequential)

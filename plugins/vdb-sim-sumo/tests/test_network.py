@@ -14,8 +14,7 @@ from hypothesis import strategies as st
 from sumo_episodes import suite
 from vdb_sim_sumo.network import CROSSING_WIDTH, build_network, junction_shape, plan_network
 from vdb_sim_sumo.session import import_libsumo, netconvert_binary, sumo_version
-from vladrivebench.scenarios import parse_scenario
-from vladrivebench.world.roads import build_road, junction_arms
+from vladrivebench.world import build_road, junction_arms, parse_scenario
 
 
 def straight_scenario(length, lanes, lane, sidewalk, light_at, crossing_at):

@@ -18,7 +18,7 @@ from vdb_model_scripted.plugin import make_scripted
 from vdb_sim_kinematic.plugin import make_simulator as make_kinematic
 from vdb_sim_sumo.network import CROSSING_WIDTH
 from vdb_sim_sumo.persons import PERSON_PREFIX
-from vladrivebench.controllers import PIDController
+from vladrivebench.episodes import build_component
 
 CROSSERS = ["P.2", "P.3", "P.4", "P.5"]
 ENTRY_TOL_STEPS = 20
@@ -40,7 +40,7 @@ def test_a_crossing_pedestrian_is_walked_by_sumo_like_the_scripted_one(scenario_
         d_k, d_s = obs_k.ground_truth.distance_to_critical, obs_s.ground_truth.distance_to_critical
         assert abs(d_k - d_s) <= 0.2 + 1e-9
 
-    pairs = lockstep(scenario, 1, make_kinematic(render=False), sim, make_scripted(), PIDController(), 260, check)
+    pairs = lockstep(scenario, 1, make_kinematic(render=False), sim, make_scripted(), build_component("controller", "pid"), 260, check)
     assert any(walked_by_sumo)
     kinematic = [k for k, _ in pairs]
     sumo = [s for _, s in pairs]

@@ -7,8 +7,8 @@ import sys
 
 import pytest
 import vdb_sim_sumo.plugin
-from vladrivebench.errors import ConfigError
-from vladrivebench.plugins import Registry, check_options
+from vladrivebench import ConfigError
+from vladrivebench.testing import Registry, check_options
 
 HEAVY = ("libsumo", "sumolib", "traci", "torch", "transformers")
 
@@ -24,7 +24,7 @@ def test_importing_the_plugin_imports_nothing_heavy():
 
 
 def test_vdb_list_plugins_does_not_import_libsumo():
-    heavy = imported_after("from vladrivebench import cli\ncli.main(['list-plugins'])")
+    heavy = imported_after("from vladrivebench.testing import run_cli\nrun_cli(['list-plugins'])")
     assert "libsumo" not in heavy and "sumolib" not in heavy
 
 

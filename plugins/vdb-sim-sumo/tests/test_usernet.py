@@ -11,9 +11,8 @@ import pytest
 from sumo_episodes import drive, suite_scenario
 from vdb_sim_sumo.network import sumo_environment
 from vdb_sim_sumo.session import netconvert_binary
-from vladrivebench.errors import ConfigError, ScenarioError
-from vladrivebench.scenarios import parse_scenario
-from vladrivebench.world.roads import GRASS, MARK_WHITE, ROAD, SIDEWALK
+from vladrivebench import ConfigError, ScenarioError
+from vladrivebench.world import GRASS, MARK_WHITE, ROAD, SIDEWALK, parse_scenario
 
 ROUTE = "A0A1,A1B1,B1C1"
 

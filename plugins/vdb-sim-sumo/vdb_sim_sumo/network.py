@@ -1,6 +1,6 @@
 """SUMO road networks built from a scenario's shared geometry with SUMO's own ``netconvert``.
 
-The shared geometry (:mod:`vladrivebench.world.roads`) is the reference the camera draws and the ground
+The shared geometry (:mod:`vladrivebench.world._roads`) is the reference the camera draws and the ground
 truth measures; the network reproduces it so that SUMO's lanes lie exactly on the drawn ones:
 
 * every road is a pair of one-way edges along its centre line (``spreadType="right"``), ``lanes`` lanes of
@@ -28,9 +28,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from xml.sax.saxutils import quoteattr
 
-from vladrivebench.errors import VdbError
-from vladrivebench.scenarios import Scenario
-from vladrivebench.world.roads import ROAD_BEHIND, RoadGeometry, junction_arms
+from vladrivebench import Scenario, VdbError
+from vladrivebench.world import ROAD_BEHIND, RoadGeometry, junction_arms
 
 CROSSING_WIDTH = 2.0
 """Width (m) of a SUMO crossing, and the length along the road of its mid-block node."""

@@ -23,10 +23,8 @@ import warnings
 from dataclasses import dataclass, replace
 from typing import Any
 
-from vladrivebench.errors import ScenarioError
-from vladrivebench.records import Actor
-from vladrivebench.scenarios import Scenario
-from vladrivebench.world.motion import ScriptedUser
+from vladrivebench import Actor, Scenario, ScenarioError
+from vladrivebench.world import ScriptedUser
 
 PERSON_KINDS = ("pedestrian", "animal")
 PERSON_PREFIX = "vdb.person."

@@ -20,7 +20,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
-from vladrivebench.errors import VdbError
+from vladrivebench import VdbError
 
 from .network import sumo_environment
 

@@ -8,7 +8,7 @@ The world of a scenario is a SUMO network built with ``netconvert`` from the sha
    controller's ``next_state``) and is placed in SUMO with ``vehicle.moveToXY``; SUMO's other vehicles see
    it as a road user (car following, junction right of way) but SUMO does not drive it;
 2. scenario road users whose trigger the ego has reached start moving. With ``pedestrians="scripted"``
-   (default) they follow the scenario's script (:mod:`vladrivebench.world.motion`), exactly as in the
+   (default) they follow the scenario's script (:mod:`vladrivebench.world._motion`), exactly as in the
    kinematic simulator, and a stand-in vehicle of their size is placed in SUMO with ``moveToXY`` so that
    SUMO's traffic sees them and SUMO's collision check covers them; with ``pedestrians="sumo"`` moving
    pedestrians and animals are SUMO persons walked by SUMO's striping model on the sidewalks and over the
@@ -17,7 +17,7 @@ The world of a scenario is a SUMO network built with ``netconvert`` from the sha
    traffic light, the stop junction;
 4. collisions: the ego's box against every actor's box (the shared separating-axis test) united with the
    collisions SUMO reports for the ego (its sublane model checks lateral overlap too), one entry per actor;
-5. the shared :class:`~vladrivebench.world.truth.TruthTracker` computes the ground truth from the road
+5. the shared :class:`~vladrivebench.world._truth.TruthTracker` computes the ground truth from the road
    users' poses (scripted ones from their script, SUMO's own from SUMO) — distance to the critical
    feature, blocking, light state, red-light and stop-sign violations (SUMO enforces no rule on a placed
    ego), terminal state — and the shared camera renders the image.
@@ -36,25 +36,23 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from vladrivebench.errors import ConfigError
-from vladrivebench.records import Actor, Control, Observation
-from vladrivebench.rng import episode_rng
-from vladrivebench.scenarios import Scenario
-from vladrivebench.world import bicycle
-from vladrivebench.world.boxes import colliding
-from vladrivebench.world.camera import Camera
-from vladrivebench.world.motion import (
+from vladrivebench import Actor, ConfigError, Control, Observation, Scenario, episode_rng
+from vladrivebench import world as bicycle  # the bicycle model: DT, apply_control, EGO_LENGTH, EGO_WIDTH
+from vladrivebench.world import (
     WORLD_FEATURES,
+    Camera,
+    RoadGeometry,
+    TruthTracker,
     blank_image,
+    build_road,
     check_numbers,
     check_supported,
     check_view_options,
+    colliding,
     ego_at_start,
     option_error,
     scripted_users,
 )
-from vladrivebench.world.roads import RoadGeometry, build_road
-from vladrivebench.world.truth import TruthTracker
 
 from . import network
 from .lights import ego_colour, frozen_state

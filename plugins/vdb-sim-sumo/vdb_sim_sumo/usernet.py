@@ -23,9 +23,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from vladrivebench.errors import ConfigError, ScenarioError
-from vladrivebench.scenarios import Scenario
-from vladrivebench.world.roads import GRASS, MARK_WHITE, ROAD, ROUTE_STEP, SIDEWALK, FeaturePose, Route
+from vladrivebench import ConfigError, Scenario, ScenarioError
+from vladrivebench.world import GRASS, MARK_WHITE, ROAD, ROUTE_STEP, SIDEWALK, FeaturePose, Route
 
 from .traffic import Trip
 
@@ -44,7 +43,7 @@ ZEBRA_STRIPE = 0.5
 
 @dataclass(frozen=True, eq=False)
 class NetGeometry:
-    """The ground of a user network, duck-typed like :class:`~vladrivebench.world.roads.RoadGeometry` for
+    """The ground of a user network, duck-typed like :class:`~vladrivebench.world._roads.RoadGeometry` for
     the camera and the ground truth: ``route``, ``lane_width``, feature poses and :meth:`classify`."""
 
     route: Route

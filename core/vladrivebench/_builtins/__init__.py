@@ -1,0 +1,64 @@
+"""The core's built-in plugin: registered through the same entry-point group and hooks as any other.
+
+Registration imports nothing heavy: factories are referenced by import path and built on first use.
+"""
+
+from __future__ import annotations
+
+import importlib.resources
+from pathlib import Path
+
+from vladrivebench import hookimpl
+
+
+def suite_directory() -> Path:
+    """Where the scenario suite (the top-level ``scenarios/`` folder) is installed."""
+    return Path(str(importlib.resources.files("vladrivebench.suite")))
+
+
+@hookimpl
+def register_scenarios(register):
+    register(suite_directory(), description="the paper's scenario suite (Appendix A) and intervention routes")
+
+
+@hookimpl
+def register_conditions(register):
+    from vladrivebench._intervention.conditions import (
+        builtin_conditions,  # numpy only: registration stays light
+    )
+
+    for condition in builtin_conditions():
+        register(condition.name, _constant(condition), description=condition.description)
+
+
+@hookimpl
+def register_controllers(register):
+    register("pid", "vladrivebench._builtins.controllers:PIDController",
+             description="Bench2Drive-style PID tracker (throttle/steer/brake)")
+    register("mpc", "vladrivebench._builtins.controllers:MPCController",
+             description="AlpaSim-style MPC tracker that sets the next ego state")
+
+
+@hookimpl
+def register_executors(register):
+    from vladrivebench._engine.executors import ProcessExecutor, SequentialExecutor  # standard library only
+
+    register("sequential", SequentialExecutor, description="one episode after the other, in this process")
+    register("process", ProcessExecutor, description="a pool of spawned worker processes (--workers N)")
+
+
+@hookimpl
+def register_metrics(register):
+    from vladrivebench._builtins.metrics import BUILTIN_METRICS  # matplotlib is imported when plotting
+
+    for name, factory, description in BUILTIN_METRICS:
+        register(name, factory, description=description)
+    register("intervention", "vladrivebench._intervention.metric:InterventionMetric", description="open-loop, closed-loop and safety intervention "
+             "tables (paper Tables 5-9) with the selfsplice gate")
+
+
+def _constant(value):
+    def factory():
+        return value
+
+    return factory

@@ -1,0 +1,1 @@
+"""Internal to the core: plugins never import this package (see vladrivebench.__all__)."""

@@ -1,0 +1,202 @@
+"""Executors: how a sweep of independent jobs (episodes) is run.
+
+An executor's ``run(worker, jobs)`` yields ``worker(job)`` for every job, in any order. ``worker`` is a
+picklable module-level function that reports its own failures as results; if a worker raises anyway, or
+its process dies, the executor yields a :class:`JobFailure` for that job and goes on with the others.
+
+Built in: ``sequential`` (in this process) and ``process`` (a pool of spawned worker processes; each
+worker process lives for the whole sweep, so whatever the worker function caches — a loaded model, a
+simulator — is built once per process and reused across episodes). A distributed engine is a plugin
+(``vdb-executor-ray``).
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import os
+import signal
+import sys
+import traceback
+from collections import deque
+from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass
+from multiprocessing.connection import wait
+from typing import Any
+
+from vladrivebench.errors import ConfigError
+
+
+@dataclass(frozen=True)
+class JobFailure:
+    """A job whose worker raised or whose worker process died; ``error`` is one line."""
+
+    job: Any
+    error: str
+    details: str = ""
+
+
+def failure_of(job: Any, exc: BaseException) -> JobFailure:
+    """A :class:`JobFailure` for ``job`` from an exception, with its traceback as details."""
+    text = " ".join(str(exc).split())
+    details = "".join(traceback.format_exception(type(exc), exc, exc.__traceback__))
+    return JobFailure(job, f"{type(exc).__name__}: {text}" if text else type(exc).__name__, details)
+
+
+def check_workers(workers: Any) -> int:
+    """``workers`` as a positive int, or a one-line :class:`ConfigError`."""
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        raise ConfigError(f"workers must be a whole number ≥ 1, got {workers!r}")
+    return workers
+
+
+class SequentialExecutor:
+    """Runs every job in this process, one after the other (the reference for determinism)."""
+
+    in_process = True
+
+    def __init__(self, workers: int = 1):
+        self.workers = check_workers(workers)
+
+    def run(self, worker: Callable[[Any], Any], jobs: Iterable[Any]) -> Iterator[Any]:
+        for job in jobs:
+            try:
+                result = worker(job)
+            except Exception as exc:
+                result = failure_of(job, exc)
+            yield result
+
+
+class ProcessExecutor:
+    """A pool of ``workers`` spawned processes, each running jobs one at a time for the whole sweep.
+
+    The pool is its own small dispatcher rather than ``concurrent.futures``: it knows which job each
+    process holds, so a process that dies (a segfault in a native library, the OOM killer) fails only
+    that job — reported as a :class:`JobFailure` — and is replaced. Workers die with the parent
+    (``PR_SET_PDEATHSIG`` on Linux), so a killed sweep leaves no orphans writing files.
+    """
+
+    in_process = False
+
+    def __init__(self, workers: int = 2, start_method: str = "spawn"):
+        self.workers = check_workers(workers)
+        if start_method not in multiprocessing.get_all_start_methods():
+            raise ConfigError(f"executor 'process': start_method {start_method!r} is not available here "
+                              f"(available: {', '.join(multiprocessing.get_all_start_methods())})")
+        self.start_method = start_method
+
+    def run(self, worker: Callable[[Any], Any], jobs: Iterable[Any]) -> Iterator[Any]:
+        pending = deque(jobs)
+        if not pending:
+            return
+        context = multiprocessing.get_context(self.start_method)
+        slots: list[_Slot] = [_Slot.start(context, worker) for _ in range(min(self.workers, len(pending)))]
+        try:
+            while pending or any(slot.job is not None for slot in slots):
+                for index, slot in enumerate(slots):
+                    if slot.job is None and pending:
+                        if not slot.process.is_alive():  # died while idle (e.g. the OOM killer)
+                            slots[index] = slot = _Slot.start(context, worker)
+                        slot.assign(pending.popleft())
+                busy = [slot for slot in slots if slot.job is not None]
+                ready = wait([slot.conn for slot in busy] + [slot.process.sentinel for slot in busy])
+                for slot in busy:
+                    if slot.conn in ready or slot.process.sentinel in ready:
+                        outcome = slot.collect()
+                        if outcome is not None:
+                            yield outcome
+                        if slot.job is None and not slot.process.is_alive():  # its job was reported
+                            slots[slots.index(slot)] = _Slot.start(context, worker)
+        finally:
+            for slot in slots:
+                slot.stop()
+
+
+@dataclass
+class _Slot:
+    """One worker process, its end of the pipe and the job it holds (if any)."""
+
+    process: Any
+    conn: Any
+    job: Any = None
+
+    @classmethod
+    def start(cls, context: Any, worker: Callable[[Any], Any]) -> _Slot:
+        parent_end, child_end = context.Pipe()
+        process = context.Process(target=_worker_main, args=(child_end, worker), daemon=True)
+        process.start()
+        child_end.close()
+        return cls(process, parent_end)
+
+    def assign(self, job: Any) -> None:
+        self.job = job
+        try:
+            self.conn.send(job)
+        except OSError:  # the process died just now: collect() reports the job as failed
+            pass
+
+    def collect(self) -> Any:
+        """The result of the job held, or a JobFailure if the process died; None if nothing is ready."""
+        job = self.job
+        try:
+            if self.conn.poll():
+                result = self.conn.recv()
+                self.job = None
+                return result
+        except (EOFError, OSError):
+            pass
+        if self.process.is_alive():
+            return None
+        self.process.join()
+        self.job = None
+        code = self.process.exitcode
+        how = f"killed by signal {-code}" if code is not None and code < 0 else f"exited with status {code}"
+        return JobFailure(job, f"worker process {how} while running this job")
+
+    def stop(self) -> None:
+        try:
+            self.conn.send(None)
+        except (OSError, ValueError):
+            pass
+        self.process.join(timeout=5)
+        if self.process.is_alive():
+            self.process.kill()
+            self.process.join()
+        self.conn.close()
+
+
+def _worker_main(conn: Any, worker: Callable[[Any], Any]) -> None:
+    """A worker process: receive jobs until told to stop (None) or the parent goes away."""
+    _die_with_parent()
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the driver's to handle: it stops the pool
+    while True:
+        try:
+            job = conn.recv()
+        except (EOFError, OSError):
+            return
+        if job is None:
+            return
+        try:
+            result = worker(job)
+        except Exception as exc:
+            result = failure_of(job, exc)
+        try:
+            conn.send(result)
+        except Exception as exc:  # an unpicklable result
+            conn.send(failure_of(job, exc))
+
+
+def _die_with_parent() -> None:
+    """Ask Linux to SIGKILL this process when its parent dies (no-op elsewhere)."""
+    if not sys.platform.startswith("linux"):
+        return
+    try:
+        import ctypes
+
+        libc = ctypes.CDLL(None, use_errno=True)
+        pr_set_pdeathsig = 1
+        libc.prctl(pr_set_pdeathsig, signal.SIGKILL, 0, 0, 0)
+        parent = multiprocessing.parent_process()
+        if parent is not None and os.getppid() != parent.pid:  # the parent died before prctl took effect
+            os._exit(1)
+    except (OSError, AttributeError):
+        pass

@@ -1,0 +1,549 @@
+"""Sweeps: many episodes (scenarios × seeds) into one output directory, resumable and failure-isolated.
+
+Output directory layout::
+
+    OUT/run.json                 the run manifest (configuration + versions), written before anything else
+    OUT/episodes/<model>__<scenario>__s<seed>.mcap   one log per episode (complete or absent)
+    OUT/failures.json            failed episodes with their errors and tracebacks
+
+Running the same configuration into the same ``OUT`` again resumes: complete episodes are kept, partial
+or damaged ones are redone, failed ones are kept as failed unless ``retry_failed``. A different
+configuration is refused before anything is touched. Episode logs hold no wall-clock time and no
+executor details, so every executor produces the same bytes.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib
+import importlib.metadata as metadata
+import json
+import os
+import platform
+import re
+import time
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from vladrivebench._engine.executors import JobFailure
+from vladrivebench._engine.registry import Registry, check_options, get_registry
+from vladrivebench._engine.runner import EpisodeFailure, run_episode
+from vladrivebench._logs.episodes import PARTIAL_SUFFIX, EpisodeWriter, partial_in_use, read_result
+from vladrivebench.errors import ConfigError, VdbError
+
+MANIFEST_NAME = "run.json"
+FAILURES_NAME = "failures.json"
+EPISODES_DIR = "episodes"
+MANIFEST_FORMAT = 1
+
+
+# -- what is asked ------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class ComponentSpec:
+    """A registered component by kind and name, with the options its factory is called with."""
+
+    kind: str
+    name: str
+    options: Mapping[str, Any] = field(default_factory=dict)
+
+    def to_json(self) -> dict[str, Any]:
+        return {"name": self.name, "options": _plain(dict(self.options))}
+
+    def key(self) -> str:
+        return json.dumps([self.kind, self.name, _plain(dict(self.options))], sort_keys=True)
+
+
+@dataclass(frozen=True)
+class RunConfig:
+    """Everything that determines a sweep's episode logs (not how it is executed)."""
+
+    model: ComponentSpec
+    simulator: ComponentSpec
+    controller: ComponentSpec
+    scenarios: tuple[Any, ...]
+    seeds: tuple[int, ...]
+    log_images: bool = False
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "model": self.model.to_json(),
+            "simulator": self.simulator.to_json(),
+            "controller": self.controller.to_json(),
+            "scenarios": [s.id for s in self.scenarios],
+            "scenario_digest": scenario_digest(self.scenarios),
+            "seeds": list(self.seeds),
+            "log_images": self.log_images,
+        }
+
+
+def scenario_digest(scenarios: Iterable[Any]) -> str:
+    """sha256 of the scenarios' full specs: an edited scenario file makes a different run."""
+    text = json.dumps([_plain(s.to_json()) for s in scenarios], sort_keys=True)
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()
+
+
+def seed_list(count: Any, offset: Any = 0) -> tuple[int, ...]:
+    """Seeds ``offset … offset+count−1``; a one-line :class:`ConfigError` for a bad count or offset."""
+    if isinstance(count, bool) or not isinstance(count, int) or count < 1:
+        raise ConfigError(f"--seeds must be a whole number ≥ 1 (seeds 0 … N−1), got {count!r}")
+    if isinstance(offset, bool) or not isinstance(offset, int) or offset < 0:
+        raise ConfigError(f"--seed-offset must be a whole number ≥ 0, got {offset!r}")
+    return tuple(range(offset, offset + count))
+
+
+def episode_id(model: str, scenario_id: str, seed: int) -> str:
+    """``<model>__<scenario>__s<seed>``, with characters unsafe in file names replaced by ``-``."""
+    def safe(text: str) -> str:
+        return re.sub(r"[^A-Za-z0-9._-]", "-", text)
+    return f"{safe(model)}__{safe(scenario_id)}__s{seed}"
+
+
+# -- registries in worker processes -------------------------------------------------------------------
+@dataclass(frozen=True)
+class RegistrySpec:
+    """How to rebuild the driver's plugin registry in another process (entry points + local plugins).
+
+    Local plugins (added with ``Registry(plugins=…)``, e.g. by tests) are carried as module names when
+    they are modules, otherwise as the (picklable) plugin objects themselves.
+    """
+
+    entry_points: bool
+    disabled: tuple[str, ...] = ()
+    local_plugins: tuple[tuple[str, Any], ...] = ()
+
+    @classmethod
+    def of(cls, registry: Registry) -> RegistrySpec:
+        local = []
+        for info in registry.plugins:
+            if info.distribution == "(local)" and info.status == "ok":
+                obj = registry.manager.get_plugin(info.name)
+                local.append((info.name, obj.__name__ if isinstance(obj, type(os)) else obj))
+        from_entry_points = any(p.distribution != "(local)" for p in registry.plugins)
+        return cls(from_entry_points, tuple(sorted(registry.disabled)), tuple(local))
+
+    def build(self) -> Registry:
+        plugins = [(name, importlib.import_module(obj) if isinstance(obj, str) else obj)
+                   for name, obj in self.local_plugins]
+        return Registry(plugins, entry_points=self.entry_points, disabled=self.disabled)
+
+    def key(self) -> str:
+        return repr((self.entry_points, self.disabled, [(n, o if isinstance(o, str) else id(o))
+                                                         for n, o in self.local_plugins]))
+
+
+_WORKER_REGISTRIES: dict[str, Registry] = {}
+
+
+def _registry_for(spec: RegistrySpec | Registry | None) -> Registry:
+    if spec is None:
+        return get_registry()
+    if isinstance(spec, Registry):  # an in-process executor: the driver's own registry
+        return spec
+    key = spec.key()
+    if key not in _WORKER_REGISTRIES:
+        _WORKER_REGISTRIES[key] = spec.build()
+    return _WORKER_REGISTRIES[key]
+
+
+# -- one episode (runs in a worker) -------------------------------------------------------------------
+@dataclass(frozen=True)
+class EpisodeJob:
+    """One episode to run: everything a worker needs, picklable."""
+
+    episode_id: str
+    path: str
+    scenario: Any
+    seed: int
+    model: ComponentSpec
+    simulator: ComponentSpec
+    controller: ComponentSpec
+    config: Mapping[str, Any]
+    versions: Mapping[str, str]
+    log_images: bool = False
+    registry: RegistrySpec | Registry | None = None
+
+
+@dataclass(frozen=True)
+class EpisodeOutcome:
+    """What became of a job: ``status`` is ``ok``, ``failed`` (recorded, the sweep goes on) or ``fatal``
+    (a configuration mistake that concerns every episode: the sweep stops with ``error``)."""
+
+    episode_id: str
+    status: str
+    result: dict | None = None
+    error: str | None = None
+    details: str = ""
+    step: int | None = None
+    component: str | None = None
+    seconds: float = 0.0
+
+
+# Components built in this process, reused across episodes: kind → (key, component).
+_COMPONENTS: dict[str, tuple[str, Any]] = {}
+
+
+def _component(registry: Registry, spec: ComponentSpec) -> Any:
+    key = f"{id(registry)}:{spec.key()}"
+    cached = _COMPONENTS.get(spec.kind)
+    if cached is not None and cached[0] == key:
+        return cached[1]
+    forget_component(spec.kind)
+    component = registry.create(spec.kind, spec.name, spec.options)
+    _COMPONENTS[spec.kind] = (key, component)
+    return component
+
+
+def forget_component(kind: str) -> None:
+    """Drop (and close, if it can be closed) the cached component of ``kind`` in this process."""
+    cached = _COMPONENTS.pop(kind, None)
+    close = getattr(cached[1], "close", None) if cached else None
+    if callable(close):
+        try:
+            close()
+        except Exception:  # closing a broken component must not hide the episode's own outcome
+            pass
+
+
+def release_components() -> None:
+    """Close and drop every component this process built (end of an in-process sweep)."""
+    for kind in list(_COMPONENTS):
+        forget_component(kind)
+
+
+def run_job(job: EpisodeJob) -> EpisodeOutcome:
+    """Run one episode into its log file; never raises (failures come back as outcomes)."""
+    started = time.perf_counter()
+
+    def outcome(status: str, **kw: Any) -> EpisodeOutcome:
+        return EpisodeOutcome(job.episode_id, status, seconds=time.perf_counter() - started, **kw)
+
+    try:
+        registry = _registry_for(job.registry)
+        model = _component(registry, job.model)
+        simulator = _component(registry, job.simulator)
+        controller = _component(registry, job.controller)
+    except VdbError as exc:
+        return outcome("fatal", error=str(exc))
+    except Exception as exc:
+        failure = _describe_exception(exc)
+        return outcome("failed", error=f"building the components raised {failure[0]}", details=failure[1])
+    try:
+        meta = episode_meta(job, model, simulator)
+        with EpisodeWriter(job.path, meta, log_images=job.log_images) as writer:
+            result = run_episode(model, simulator, controller, job.scenario, job.seed, writer=writer,
+                                 model_name=job.model.name, simulator_name=job.simulator.name,
+                                 controller_name=job.controller.name)
+            writer.finish(result.to_json())
+    except EpisodeFailure as exc:
+        forget_component(exc.component)
+        return outcome("failed", error=str(exc), details=exc.details, step=exc.step, component=exc.component)
+    except Exception as exc:
+        error, details = _describe_exception(exc)
+        return outcome("failed", error=error, details=details)
+    return outcome("ok", result=result.to_json())
+
+
+def episode_meta(job: EpisodeJob, model: Any, simulator: Any) -> dict[str, Any]:
+    """The ``episode`` metadata record of a job's log."""
+    from dataclasses import asdict, is_dataclass
+
+    def describe(obj: Any) -> Any:
+        return asdict(obj) if is_dataclass(obj) and not isinstance(obj, type) else None
+
+    return {
+        "episode_id": job.episode_id,
+        "model": {**job.model.to_json(), "cot_format": describe(getattr(model, "cot_format", None)),
+                  "trajectory_spec": describe(getattr(model, "trajectory_spec", None))},
+        "simulator": {**job.simulator.to_json(), "dt": float(simulator.dt)},
+        "controller": job.controller.to_json(),
+        "scenario": _plain(job.scenario.to_json()),
+        "seed": job.seed,
+        "config": dict(job.config),
+        "versions": dict(job.versions),
+    }
+
+
+def _describe_exception(exc: BaseException) -> tuple[str, str]:
+    import traceback
+
+    text = " ".join(str(exc).split())
+    details = "".join(traceback.format_exception(type(exc), exc, exc.__traceback__))
+    return (f"{type(exc).__name__}: {text}" if text else type(exc).__name__), details
+
+
+# -- the sweep (runs in the driver) -------------------------------------------------------------------
+@dataclass
+class SweepSummary:
+    """The state of an output directory after a sweep: results of every complete episode, failures."""
+
+    out: Path
+    jobs: list[EpisodeJob]
+    results: dict[str, dict]
+    failures: dict[str, dict]
+    ran: int = 0
+    skipped: int = 0
+    seconds: float = 0.0
+
+    @property
+    def total(self) -> int:
+        return len(self.jobs)
+
+    def per_scenario(self) -> list[dict[str, Any]]:
+        """One row per scenario: episodes complete and failed, collisions, violations, completion, speed."""
+        rows: dict[str, dict[str, Any]] = {}
+        for job in self.jobs:
+            row = rows.setdefault(job.scenario.id, {"scenario": job.scenario.id, "episodes": 0, "failed": 0,
+                                                    "collisions": 0, "violations": 0, "_completion": [],
+                                                    "_speed": []})
+            result = self.results.get(job.episode_id)
+            if result is None:
+                row["failed"] += job.episode_id in self.failures
+                continue
+            row["episodes"] += 1
+            row["collisions"] += result["collisions"] > 0
+            row["violations"] += result["violations"] > 0
+            row["_completion"].append(result["route_completion"])
+            row["_speed"].append(result["mean_speed"])
+        table = []
+        for row in rows.values():
+            completion, speed = row.pop("_completion"), row.pop("_speed")
+            row["route_completion"] = sum(completion) / len(completion) if completion else None
+            row["mean_speed"] = sum(speed) / len(speed) if speed else None
+            table.append(row)
+        return table
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "out": str(self.out),
+            "episodes": self.total,
+            "complete": len(self.results),
+            "failed": len(self.failures),
+            "ran": self.ran,
+            "skipped": self.skipped,
+            "seconds": round(self.seconds, 3),
+            "scenarios": self.per_scenario(),
+            "failures": [{"episode_id": k, "error": v["error"]} for k, v in sorted(self.failures.items())],
+        }
+
+
+OutcomeCallback = Callable[[EpisodeOutcome, int, int], None]
+"""``callback(outcome, done, todo)`` after each episode of this sweep (progress display)."""
+
+
+def run_sweep(config: RunConfig, out: Path | str, *, executor: Any, executor_info: Mapping[str, Any] | None = None,
+              retry_failed: bool = False, registry: Registry | None = None,
+              on_outcome: OutcomeCallback | None = None) -> SweepSummary:
+    """Run every episode of ``config`` not already complete in ``out`` and return the directory's summary.
+
+    Raises a one-line :class:`VdbError` (before anything is written) for unknown components, options their
+    factories do not take, or an ``out`` holding a different run; and, during the sweep, for a component
+    that cannot be built because of the configuration (episodes already complete stay).
+    """
+    started = time.perf_counter()
+    registry = registry or get_registry()
+    components = (config.model, config.simulator, config.controller)
+    for spec in components:
+        check_options(spec.kind, spec.name, registry.get(spec.kind, spec.name).factory, spec.options)
+    out = Path(out)
+    versions = collect_versions(registry, components)
+    manifest = {"format": MANIFEST_FORMAT, "config": config.to_json(), "versions": versions,
+                "executor": dict(executor_info or {})}
+    prepare_out(out, manifest)
+    in_process = bool(getattr(executor, "in_process", False))
+    jobs = make_jobs(config, out, versions, registry if in_process else RegistrySpec.of(registry))
+    failures = load_failures(out)
+    todo, results = _plan(jobs, failures, retry_failed)
+    summary = SweepSummary(out, jobs, results, failures, skipped=len(jobs) - len(todo))
+    _remove_stale_partials(out / EPISODES_DIR)
+    try:
+        _execute(executor, todo, summary, out, on_outcome)
+    finally:
+        if in_process:
+            release_components()
+        write_failures(out, summary.failures)
+        summary.seconds = time.perf_counter() - started
+    return summary
+
+
+def _plan(jobs: list[EpisodeJob], failures: dict[str, dict], retry_failed: bool
+          ) -> tuple[list[EpisodeJob], dict[str, dict]]:
+    todo, results = [], {}
+    for job in jobs:
+        result = read_result(job.path) if os.path.exists(job.path) else None
+        if result is not None:
+            results[job.episode_id] = result
+            failures.pop(job.episode_id, None)
+        elif job.episode_id in failures and not retry_failed:
+            continue
+        else:
+            Path(job.path).unlink(missing_ok=True)  # truncated or damaged: redo it
+            todo.append(job)
+    return todo, results
+
+
+def _execute(executor: Any, todo: list[EpisodeJob], summary: SweepSummary, out: Path,
+             on_outcome: OutcomeCallback | None) -> None:
+    by_id = {job.episode_id: job for job in todo}
+    stream = executor.run(run_job, todo)
+    try:
+        for item in stream:
+            outcome = _as_outcome(item)
+            if outcome.status == "fatal":
+                raise VdbError(outcome.error or "a component could not be built")
+            summary.ran += 1
+            if outcome.status == "ok":
+                summary.results[outcome.episode_id] = outcome.result or {}
+                summary.failures.pop(outcome.episode_id, None)
+            else:
+                summary.failures[outcome.episode_id] = _failure_entry(by_id.get(outcome.episode_id), outcome)
+                write_failures(out, summary.failures)
+            if on_outcome is not None:
+                on_outcome(outcome, summary.ran, len(todo))
+    finally:
+        close = getattr(stream, "close", None)
+        if callable(close):
+            close()
+
+
+def _as_outcome(item: Any) -> EpisodeOutcome:
+    if isinstance(item, EpisodeOutcome):
+        return item
+    if isinstance(item, JobFailure):
+        return EpisodeOutcome(item.job.episode_id, "failed", error=item.error, details=item.details)
+    raise TypeError(f"executor returned {type(item).__name__}, expected the worker's result or a JobFailure")
+
+
+def _failure_entry(job: EpisodeJob | None, outcome: EpisodeOutcome) -> dict[str, Any]:
+    return {
+        "episode_id": outcome.episode_id,
+        "scenario": job.scenario.id if job else None,
+        "seed": job.seed if job else None,
+        "step": outcome.step,
+        "component": outcome.component,
+        "error": outcome.error,
+        "traceback": outcome.details,
+    }
+
+
+def make_jobs(config: RunConfig, out: Path, versions: Mapping[str, str],
+              registry: RegistrySpec | Registry | None) -> list[EpisodeJob]:
+    """Every episode of the sweep, scenario-major, seeds in order."""
+    identity = config.to_json()
+    jobs = []
+    for scenario in config.scenarios:
+        for seed in config.seeds:
+            eid = episode_id(config.model.name, scenario.id, seed)
+            jobs.append(EpisodeJob(eid, str(out / EPISODES_DIR / f"{eid}.mcap"), scenario, seed, config.model,
+                                   config.simulator, config.controller, identity, dict(versions),
+                                   config.log_images, registry))
+    return jobs
+
+
+# -- the output directory -----------------------------------------------------------------------------
+def prepare_out(out: Path, manifest: Mapping[str, Any]) -> None:
+    """Check ``out`` can hold this run (resume or new) and write the manifest if it is new."""
+    path = out / MANIFEST_NAME
+    if path.exists():
+        try:
+            previous = json.loads(path.read_text(encoding="utf-8"))
+        except (OSError, ValueError) as exc:
+            raise ConfigError(f"{path}: unreadable run manifest ({exc}); use another --out") from None
+        for section in ("config", "versions"):
+            difference = first_difference(previous.get(section), _plain(manifest[section]), section)
+            if difference:
+                raise ConfigError(f"{out} holds a run with a different configuration ({difference}); "
+                                  f"repeat that run's command to resume it, or use another --out")
+        return
+    episodes = out / EPISODES_DIR
+    if episodes.is_dir() and any(episodes.iterdir()):
+        raise ConfigError(f"{out} holds episode logs but no {MANIFEST_NAME}: not a run this command can "
+                          f"resume; use another --out")
+    episodes.mkdir(parents=True, exist_ok=True)
+    write_json_atomic(path, manifest)
+
+
+_ABSENT = object()
+
+
+def first_difference(before: Any, now: Any, where: str) -> str | None:
+    """``"config.model.options.alpha: 1 now, 0 before"`` for the first place two JSON values differ."""
+    if isinstance(before, dict) and isinstance(now, dict):
+        for key in sorted(set(before) | set(now)):
+            found = first_difference(before.get(key, _ABSENT), now.get(key, _ABSENT), f"{where}.{key}")
+            if found:
+                return found
+        return None
+    if before is _ABSENT or now is _ABSENT or before != now:
+        return f"{where}: {_short(now)} now, {_short(before)} before"
+    return None
+
+
+def _short(value: Any) -> str:
+    if value is _ABSENT:
+        return "absent"
+    text = json.dumps(value)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def load_failures(out: Path) -> dict[str, dict]:
+    """Failed episodes recorded in ``out/failures.json`` by earlier sweeps (by episode id)."""
+    path = out / FAILURES_NAME
+    if not path.exists():
+        return {}
+    try:
+        entries = json.loads(path.read_text(encoding="utf-8")).get("failures", [])
+        return {e["episode_id"]: e for e in entries}
+    except (OSError, ValueError, AttributeError, KeyError, TypeError):
+        return {}  # a damaged failures file only means those episodes are retried
+
+
+def write_failures(out: Path, failures: Mapping[str, dict]) -> None:
+    write_json_atomic(out / FAILURES_NAME, {"failures": [failures[k] for k in sorted(failures)]})
+
+
+def write_json_atomic(path: Path, data: Any) -> None:
+    """Write JSON to ``path`` so that it is either the old or the new content, never half."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    partial = path.with_name(f"{path.name}.{os.getpid()}{PARTIAL_SUFFIX}")
+    with open(partial, "w", encoding="utf-8") as handle:
+        json.dump(data, handle, indent=2, sort_keys=False)
+        handle.write("\n")
+        handle.flush()
+        os.fsync(handle.fileno())
+    os.replace(partial, path)
+
+
+def _remove_stale_partials(directory: Path) -> None:
+    """Delete partial logs that no live writer holds (left by a killed sweep)."""
+    if not directory.is_dir():
+        return
+    for path in directory.glob(f"*{PARTIAL_SUFFIX}"):
+        if not partial_in_use(path):
+            path.unlink(missing_ok=True)
+
+
+# -- versions -----------------------------------------------------------------------------------------
+def collect_versions(registry: Registry, components: Sequence[ComponentSpec]) -> dict[str, str]:
+    """Python, the core, numpy, mcap and the distribution of every component that takes part."""
+    versions = {"python": platform.python_version()}
+    for dist in ("vladrivebench", "numpy", "mcap"):
+        versions[dist] = _dist_version(dist)
+    for spec in components:
+        dist = registry.get(spec.kind, spec.name).distribution
+        if dist and dist != "(local)":
+            versions[dist] = _dist_version(dist)
+    return versions
+
+
+def _dist_version(dist: str) -> str:
+    try:
+        return metadata.version(dist)
+    except metadata.PackageNotFoundError:
+        return "-"
+
+
+def _plain(value: Any) -> Any:
+    """JSON round trip: tuples become lists, so stored and fresh configurations compare equal."""
+    return json.loads(json.dumps(value, default=str))

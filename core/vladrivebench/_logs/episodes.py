@@ -1,0 +1,543 @@
+"""Episode logs: one MCAP file per episode, the single source of truth for every analysis.
+
+Layout of a log (schema version ``"1"``, every message JSON-encoded, one message per channel per step,
+``log_time`` = simulated time in nanoseconds, ``sequence`` = step number):
+
+==================  ===========================================================================
+``/ego``            the ego state (fields of :class:`~vladrivebench.records.EgoState`)
+``/ground_truth``   ``dataclasses.asdict(GroundTruth)`` (actors as dicts, tuples as lists)
+``/cot``            ``{"text", "slots", "spliced"}``
+``/trajectory``     ``{"times", "xy"}`` (ego frame at the moment of prediction)
+``/control``        ``{"throttle", "steer", "brake", "v_des", "next_state"}``
+``/extras``         whatever the step policy returned as extras (``{}`` by default)
+``/command``        ``{"command"}``: the navigation command the model was given
+``/camera``         optional (``log_images``): ``{"timestamp", "frame_id", "format": "png", "data"}``
+                    with base64 PNG data (foxglove ``CompressedImage`` layout)
+==================  ===========================================================================
+
+Metadata records: ``episode`` (written first: ``{"schema_version", "json"}`` where ``json`` holds the
+episode description — ids, components and their options, scenario spec, seed, run configuration,
+versions) and ``result`` (written last: ``{"json"}`` with terminal, steps, collisions, violations, route
+completion, mean speed, duration). No wall-clock time is written, so the same run gives the same bytes.
+
+Crash safety: a writer fills ``NAME.mcap.<pid>.partial`` beside the final path, fsyncs it and renames it
+with :func:`os.replace`, so ``NAME.mcap`` is complete or absent.
+"""
+
+from __future__ import annotations
+
+import base64
+import dataclasses
+import io
+import json
+import os
+import struct
+import zlib
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from vladrivebench.errors import LogError
+from vladrivebench.records import Control, CoT, Observation, Trajectory
+
+SCHEMA_VERSION = "1"
+PARTIAL_SUFFIX = ".partial"
+STEP_CHANNELS = ("/ego", "/ground_truth", "/cot", "/trajectory", "/control", "/extras", "/command")
+CAMERA_CHANNEL = "/camera"
+PROFILE = "vladrivebench"
+_NS = 1_000_000_000
+_MAGIC = b"\x89MCAP0\r\n"
+
+_FIELD_OF_CHANNEL = {
+    "/ego": "ego",
+    "/ground_truth": "ground_truth",
+    "/cot": "cot",
+    "/trajectory": "trajectory",
+    "/control": "control",
+    "/extras": "extras",
+}
+
+_SCHEMAS: dict[str, dict[str, Any]] = {
+    "/ego": {
+        "title": "vdb.EgoState",
+        "type": "object",
+        "properties": {k: {"type": "number"} for k in ("x", "y", "yaw", "speed", "steer", "length", "width")},
+    },
+    "/ground_truth": {
+        "title": "vdb.GroundTruth",
+        "type": "object",
+        "properties": {
+            "step": {"type": "integer"},
+            "time": {"type": "number"},
+            "actors": {"type": "array", "items": {"type": "object"}},
+            "critical_id": {"type": ["string", "null"]},
+            "critical_kind": {"type": ["string", "null"]},
+            "distance_to_critical": {"type": ["number", "null"]},
+            "blocking": {"type": "boolean"},
+            "light_state": {"type": ["string", "null"]},
+            "collisions": {"type": "array", "items": {"type": "string"}},
+            "violations": {"type": "array", "items": {"type": "string"}},
+            "terminal": {"type": ["string", "null"]},
+        },
+    },
+    "/cot": {
+        "title": "vdb.CoT",
+        "type": "object",
+        "properties": {
+            "text": {"type": "string"},
+            "slots": {"type": "object", "additionalProperties": {"type": "string"}},
+            "spliced": {"type": "boolean"},
+        },
+    },
+    "/trajectory": {
+        "title": "vdb.Trajectory",
+        "type": "object",
+        "properties": {
+            "times": {"type": "array", "items": {"type": "number"}},
+            "xy": {"type": "array", "items": {"type": "array", "items": {"type": "number"}}},
+        },
+    },
+    "/control": {
+        "title": "vdb.Control",
+        "type": "object",
+        "properties": {
+            "throttle": {"type": "number"},
+            "steer": {"type": "number"},
+            "brake": {"type": "number"},
+            "v_des": {"type": "number"},
+            "next_state": {"type": ["object", "null"]},
+        },
+    },
+    "/extras": {"title": "vdb.Extras", "type": "object"},
+    "/command": {"title": "vdb.Command", "type": "object", "properties": {"command": {"type": "string"}}},
+    CAMERA_CHANNEL: {
+        "title": "foxglove.CompressedImage",
+        "type": "object",
+        "properties": {
+            "timestamp": {"type": "object"},
+            "frame_id": {"type": "string"},
+            "format": {"type": "string"},
+            "data": {"type": "string", "contentEncoding": "base64"},
+        },
+    },
+}
+
+
+# -- records ----------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class StepRecord:
+    """One logged step, every field as the plain JSON the log holds."""
+
+    step: int
+    time: float
+    ego: dict
+    ground_truth: dict
+    cot: dict
+    trajectory: dict
+    control: dict
+    extras: dict
+    command: str = ""
+    image_png: bytes | None = None
+
+
+@dataclass(frozen=True)
+class Episode:
+    """A read episode log. ``complete`` is False for a truncated log read with ``recover=True``."""
+
+    path: Path
+    meta: dict
+    steps: list[StepRecord]
+    result: dict | None
+    complete: bool
+
+    @property
+    def episode_id(self) -> str:
+        return str(self.meta["episode_id"])
+
+    @property
+    def model(self) -> str:
+        return str(self.meta["model"]["name"])
+
+    @property
+    def scenario_id(self) -> str:
+        return str(self.meta["scenario"]["id"])
+
+    @property
+    def seed(self) -> int:
+        return int(self.meta["seed"])
+
+
+# -- JSON encoding -----------------------------------------------------------------------------------
+def to_jsonable(value: Any) -> Any:
+    """Plain JSON types for records, numpy scalars/arrays, tuples and mappings (NaN is refused)."""
+    return json.loads(_dumps(value))
+
+
+def _json_default(value: Any) -> Any:
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        return _shallow_fields(value)
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, Mapping):
+        return dict(value)
+    if isinstance(value, (set, frozenset)):
+        return sorted(value)
+    if isinstance(value, bytes):
+        return base64.b64encode(value).decode("ascii")
+    raise TypeError(f"cannot log a value of type {type(value).__name__}")
+
+
+def _shallow_fields(record: Any) -> dict[str, Any]:
+    return {f.name: getattr(record, f.name) for f in dataclasses.fields(record)}
+
+
+def _dumps(value: Any) -> bytes:
+    try:
+        text = json.dumps(value, separators=(",", ":"), allow_nan=False, default=_json_default)
+    except ValueError as exc:  # NaN or infinity somewhere
+        raise ValueError(f"cannot log a non-finite number ({exc})") from None
+    return text.encode("utf-8")
+
+
+def encode_png(image: np.ndarray) -> bytes:
+    """A deterministic PNG (8-bit RGB or grey, no filtering, zlib level 6) of a uint8 image."""
+    array = np.ascontiguousarray(np.asarray(image))
+    if array.dtype != np.uint8 or array.ndim not in (2, 3) or (array.ndim == 3 and array.shape[2] != 3):
+        raise ValueError(f"expected a uint8 (H, W) or (H, W, 3) image, got {array.dtype} {array.shape}")
+    height, width = array.shape[:2]
+    colour_type = 2 if array.ndim == 3 else 0
+    rows = array.reshape(height, -1)
+    raw = np.hstack([np.zeros((height, 1), np.uint8), rows]).tobytes()
+
+    def chunk(tag: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + tag + data + struct.pack(">I", zlib.crc32(tag + data))
+
+    header = struct.pack(">IIBBBBB", width, height, 8, colour_type, 0, 0, 0)
+    return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header) + chunk(b"IDAT", zlib.compress(raw, 6)) + chunk(b"IEND", b"")
+
+
+def step_messages(obs: Observation, cot: CoT, trajectory: Trajectory, control: Control,
+                  extras: Mapping[str, Any] | None = None) -> dict[str, Any]:
+    """The JSON-ready message of every step channel for one step."""
+    return {
+        "/ego": _shallow_fields(obs.ego),
+        "/ground_truth": _shallow_fields(obs.ground_truth),
+        "/cot": {"text": cot.text, "slots": dict(cot.slots), "spliced": bool(cot.spliced)},
+        "/trajectory": trajectory.to_json(),
+        "/control": {
+            "throttle": control.throttle,
+            "steer": control.steer,
+            "brake": control.brake,
+            "v_des": control.v_des,
+            "next_state": _shallow_fields(control.next_state) if control.next_state else None,
+        },
+        "/extras": dict(extras or {}),
+        "/command": {"command": obs.command},
+    }
+
+
+# -- writing -----------------------------------------------------------------------------------------
+class EpisodeWriter:
+    """Writes one episode log atomically.
+
+    Use as a context manager: ``write_step`` once per step, then ``finish(result)``, which writes the
+    ``result`` record, fsyncs and renames the partial file to ``path``. Leaving the block without
+    ``finish`` (an exception) removes the partial file: the episode log then does not exist.
+
+    Example::
+
+        with EpisodeWriter(out / "ep.mcap", meta) as writer:
+            writer.write_step(obs, cot, trajectory, control, extras)
+            writer.finish({"terminal": "route_complete", "steps": 1})
+    """
+
+    def __init__(self, path: Path | str, meta: Mapping[str, Any], *, log_images: bool = False,
+                 chunk_size: int = 64 * 1024):
+        self.path = Path(path)
+        self.meta = dict(meta)
+        self.log_images = log_images
+        self.chunk_size = chunk_size
+        self.partial_path = self.path.with_name(f"{self.path.name}.{os.getpid()}{PARTIAL_SUFFIX}")
+        self._file = None
+        self._writer = None
+        self._channels: dict[str, int] = {}
+        self.steps_written = 0
+        self.finished = False
+
+    def __enter__(self) -> EpisodeWriter:
+        from mcap.writer import CompressionType, IndexType, Writer
+
+        from vladrivebench import __version__
+
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._file = open(self.partial_path, "wb")  # noqa: SIM115 - closed in finish/__exit__
+        _lock(self._file)  # held until closed: tells a resumed sweep this partial is still being written
+        # No message-index records: they are the only MCAP records without a CRC, so a flipped byte in one
+        # would go unnoticed; the reader reads chunks in order and needs no per-message index.
+        self._writer = Writer(self._file, chunk_size=self.chunk_size, compression=CompressionType.ZSTD,
+                              enable_data_crcs=True,
+                              index_types=IndexType.ATTACHMENT | IndexType.CHUNK | IndexType.METADATA)
+        self._writer.start(profile=PROFILE, library=f"vladrivebench/{__version__}")
+        topics = STEP_CHANNELS + ((CAMERA_CHANNEL,) if self.log_images else ())
+        for topic in topics:
+            schema = _SCHEMAS[topic]
+            schema_id = self._writer.register_schema(
+                name=schema["title"], encoding="jsonschema", data=json.dumps(schema).encode("utf-8")
+            )
+            self._channels[topic] = self._writer.register_channel(
+                topic=topic, message_encoding="json", schema_id=schema_id
+            )
+        meta = {"schema_version": SCHEMA_VERSION, **self.meta}
+        self._writer.add_metadata("episode", {"schema_version": SCHEMA_VERSION, "json": _dumps(meta).decode()})
+        return self
+
+    def write_step(self, obs: Observation, cot: CoT, trajectory: Trajectory, control: Control,
+                   extras: Mapping[str, Any] | None = None) -> None:
+        """Log one step: the observation's ego and ground truth, the CoT, trajectory, control and extras."""
+        messages = {topic: _dumps(msg) for topic, msg in step_messages(obs, cot, trajectory, control,
+                                                                       extras).items()}
+        if self.log_images:
+            messages[CAMERA_CHANNEL] = _dumps(_camera_message(obs))
+        time_ns = int(round(obs.time * _NS))
+        for topic, data in messages.items():
+            self._writer.add_message(self._channels[topic], log_time=time_ns, data=data,
+                                     publish_time=time_ns, sequence=obs.step)
+        self.steps_written += 1
+
+    def finish(self, result: Mapping[str, Any]) -> Path:
+        """Write the result record and atomically publish the log at ``path``."""
+        self._writer.add_metadata("result", {"json": _dumps(result).decode()})
+        self._writer.finish()
+        self._file.flush()
+        os.fsync(self._file.fileno())
+        self._file.close()
+        os.replace(self.partial_path, self.path)
+        _fsync_directory(self.path.parent)
+        self.finished = True
+        return self.path
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if self.finished:
+            return
+        if self._file is not None and not self._file.closed:
+            self._file.close()
+        self.partial_path.unlink(missing_ok=True)
+
+
+def _camera_message(obs: Observation) -> dict[str, Any]:
+    seconds, nanos = divmod(int(round(obs.time * _NS)), _NS)
+    return {
+        "timestamp": {"sec": seconds, "nsec": nanos},
+        "frame_id": "front_camera",
+        "format": "png",
+        "data": base64.b64encode(encode_png(obs.image)).decode("ascii"),
+    }
+
+
+def _lock(handle: Any) -> None:
+    try:
+        import fcntl
+    except ImportError:  # not POSIX: partial_in_use falls back to the writer's pid
+        return
+    fcntl.flock(handle.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+
+
+def partial_in_use(path: Path | str) -> bool:
+    """Whether a live :class:`EpisodeWriter` is still writing the partial log ``path``.
+
+    The writer holds an exclusive ``flock`` on it; the kernel releases it when the writer's process
+    dies, however it dies — so a partial nobody holds is left over from a killed run.
+    """
+    try:
+        import fcntl
+    except ImportError:
+        return _pid_alive(Path(path).name[: -len(PARTIAL_SUFFIX)].rsplit(".", 1)[-1])
+    try:
+        with open(path, "rb") as handle:
+            try:
+                fcntl.flock(handle.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                return True
+            fcntl.flock(handle.fileno(), fcntl.LOCK_UN)
+            return False
+    except FileNotFoundError:
+        return False
+
+
+def _pid_alive(pid: str) -> bool:
+    if not pid.isdigit():
+        return False
+    try:
+        os.kill(int(pid), 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def _fsync_directory(directory: Path) -> None:
+    try:
+        fd = os.open(directory, os.O_RDONLY)
+    except OSError:  # not supported on this platform
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
+# -- reading -----------------------------------------------------------------------------------------
+def read_episode(path: Path | str, *, recover: bool = False) -> Episode:
+    """Read an episode log.
+
+    A corrupt, truncated or incompatible file raises :class:`LogError` naming the file. With
+    ``recover=True`` a truncated file (e.g. a ``.partial`` left by a killed run) yields its complete
+    steps, ``result=None`` and ``complete=False``.
+    """
+    from mcap.records import Channel, DataEnd, Footer, Message, Metadata
+    from mcap.stream_reader import StreamReader
+
+    path = Path(path)
+    try:
+        data = path.read_bytes()
+    except FileNotFoundError:
+        raise LogError(f"episode log {path}: no such file") from None
+    except OSError as exc:
+        raise LogError(f"episode log {path}: cannot read ({exc.strerror})") from None
+    topics: dict[int, str] = {}
+    by_step: dict[int, dict[str, Any]] = {}
+    meta: dict | None = None
+    result: dict | None = None
+    complete = data_end = False
+    try:
+        for record in StreamReader(io.BytesIO(data), validate_crcs=True).records:
+            if isinstance(record, Channel):
+                topics[record.id] = record.topic
+            elif isinstance(record, Message):
+                _collect_message(by_step, topics, record)
+            elif isinstance(record, Metadata):
+                if record.name == "episode":
+                    meta = _episode_meta(path, record.metadata)
+                elif record.name == "result":
+                    result = json.loads(record.metadata["json"])
+            elif isinstance(record, DataEnd):
+                data_end = True
+            elif isinstance(record, Footer):
+                if not data_end:  # a damaged DataEnd opcode reads as an unknown record and would be skipped
+                    raise ValueError("no data-end record before the footer")
+                _check_summary_crc(data, record)
+        complete = True
+    except LogError:
+        raise
+    except Exception as exc:  # mcap raises many types for damaged bytes: one line for all of them
+        if not recover or meta is None:
+            raise LogError(f"episode log {path}: corrupt or truncated ({_describe(exc)}); "
+                           f"re-run the episode, or read it with recover=True") from None
+    if meta is None:
+        raise LogError(f"episode log {path}: not a VLADriveBench episode log (no 'episode' metadata)")
+    if complete and result is None:
+        complete = False
+        if not recover:
+            raise LogError(f"episode log {path}: incomplete (no 'result' record); re-run the episode")
+    return Episode(path, meta, _assemble_steps(by_step), result if complete else None, complete)
+
+
+def _check_summary_crc(data: bytes, footer: Any) -> None:
+    """The summary section (indexes, repeated schemas) is covered by the footer's CRC: check it."""
+    if footer.summary_crc == 0:
+        return
+    end = len(data) - len(_MAGIC) - 4  # the CRC covers everything up to the CRC field itself
+    start = footer.summary_start or end - 25  # no summary: only the footer's own fields
+    if zlib.crc32(data[start:end]) != footer.summary_crc:
+        raise ValueError("summary section CRC mismatch")
+
+
+def _collect_message(by_step: dict[int, dict[str, Any]], topics: dict[int, str], message: Any) -> None:
+    topic = topics.get(message.channel_id)
+    if topic is None:
+        raise LogError("message on an unknown channel")
+    entry = by_step.setdefault(message.sequence, {"time": message.log_time / _NS})
+    if topic == CAMERA_CHANNEL:
+        entry["image_png"] = base64.b64decode(json.loads(message.data)["data"])
+    elif topic == "/command":
+        entry["command"] = str(json.loads(message.data).get("command", ""))
+    elif topic in _FIELD_OF_CHANNEL:
+        entry[_FIELD_OF_CHANNEL[topic]] = json.loads(message.data)
+
+
+def _assemble_steps(by_step: dict[int, dict[str, Any]]) -> list[StepRecord]:
+    steps = []
+    for step in sorted(by_step):
+        entry = by_step[step]
+        if not all(field in entry for field in _FIELD_OF_CHANNEL.values()):
+            continue  # a step cut short by truncation
+        time = float(entry["ground_truth"].get("time", entry["time"]))
+        steps.append(StepRecord(step=step, time=time, command=entry.get("command", ""),
+                                image_png=entry.get("image_png"),
+                                **{f: entry[f] for f in _FIELD_OF_CHANNEL.values()}))
+    return steps
+
+
+def _episode_meta(path: Path, metadata: Mapping[str, str]) -> dict:
+    version = metadata.get("schema_version", "?")
+    if version.split(".")[0] != SCHEMA_VERSION.split(".")[0]:
+        raise LogError(f"episode log {path}: written with log schema version {version}, this VLADriveBench "
+                       f"reads version {SCHEMA_VERSION}; re-run it or use a matching vladrivebench")
+    try:
+        return json.loads(metadata["json"])
+    except (KeyError, ValueError):
+        raise LogError(f"episode log {path}: unreadable 'episode' metadata") from None
+
+
+def read_result(path: Path | str) -> dict | None:
+    """The ``result`` record of a complete log, read from the summary without reading the steps.
+
+    ``None`` when the file is not a complete, readable episode log (missing, truncated, corrupt).
+    """
+    from mcap.reader import SeekingReader
+
+    try:
+        with open(path, "rb") as handle:
+            handle.seek(-8, os.SEEK_END)
+            if handle.read(8) != _MAGIC:
+                return None
+            handle.seek(0)
+            reader = SeekingReader(handle)
+            if reader.get_summary() is None:
+                return None
+            for record in reader.iter_metadata():
+                if record.name == "result":
+                    return json.loads(record.metadata["json"])
+    except Exception:  # any damage means "not complete": the caller re-runs the episode
+        return None
+    return None
+
+
+def find_episodes(directory: Path | str) -> list[Path]:
+    """Every episode log (``*.mcap``) under ``directory``, recursively, sorted; LogError if none."""
+    directory = Path(directory)
+    if not directory.is_dir():
+        raise LogError(f"episode directory {directory}: no such directory")
+    paths = sorted(p for p in directory.rglob("*.mcap") if p.is_file())
+    if not paths:
+        raise LogError(f"episode directory {directory}: no episode logs (*.mcap) found; "
+                       f"run `vdb run --out {directory}` first")
+    return paths
+
+
+def load_episodes(directory: Path | str, *, recover: bool = False) -> list[Episode]:
+    """Read every episode log under ``directory`` (see :func:`find_episodes`)."""
+    return [read_episode(path, recover=recover) for path in find_episodes(directory)]
+
+
+def _describe(exc: BaseException) -> str:
+    text = str(exc).strip().splitlines()
+    return f"{type(exc).__name__}: {text[0]}" if text else type(exc).__name__

@@ -1,0 +1,404 @@
+"""A pinhole front camera that renders the world as a model would see it.
+
+The ground is ray-cast per pixel: the ego drives on a flat plane, so the ground point each pixel sees is
+fixed in the ego frame and computed once; each frame only moves those points by the ego's pose and asks
+the road geometry for their material. Actors, road features and scenery are boxes drawn over the ground
+in painter's order (farthest first), each visible face filled as a convex polygon and shaded by a fixed
+sun. Visual salience is therefore physical: a pedestrian 50 m away covers a handful of pixels, a car in
+the lane ahead covers a large block.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from vladrivebench.records import Actor, EgoState
+from vladrivebench.world._roads import (
+    GRASS,
+    KERB,
+    MARK_WHITE,
+    MARK_YELLOW,
+    ROAD,
+    SIDEWALK,
+    Prop,
+    RoadGeometry,
+)
+
+MATERIAL_COLOURS = np.zeros((6, 3), dtype=float)
+MATERIAL_COLOURS[GRASS] = (86, 112, 64)
+MATERIAL_COLOURS[SIDEWALK] = (150, 146, 138)
+MATERIAL_COLOURS[KERB] = (196, 194, 188)
+MATERIAL_COLOURS[ROAD] = (72, 72, 76)
+MATERIAL_COLOURS[MARK_WHITE] = (232, 232, 232)
+MATERIAL_COLOURS[MARK_YELLOW] = (222, 184, 52)
+
+SKY_TOP = np.array((92, 142, 210), dtype=float)
+SKY_HORIZON = np.array((190, 214, 236), dtype=float)
+HAZE = np.array((176, 190, 204), dtype=float)
+SUN = np.array((0.35, -0.45, 0.82)) / np.linalg.norm((0.35, -0.45, 0.82))
+
+PROP_RANGE = 150.0
+"""Scenery farther than this from the camera is not drawn (level of detail; it is small and hazy there)."""
+LIGHT_HEAD_HEIGHT = 1.0
+"""A traffic light actor's head occupies ``[height - 1.0, height]`` above the ground."""
+SIGN_PLATE_SIZE = 0.75
+"""A stop sign actor's plate occupies ``[height - 0.75, height]``."""
+LAMP_COLOURS = {"red": (255, 40, 30), "yellow": (255, 200, 30), "green": (40, 235, 90)}
+LAMP_OFF = {"red": (70, 22, 20), "yellow": (70, 60, 20), "green": (20, 60, 30)}
+LAMP_ORDER = ("red", "yellow", "green")
+PROP_COLOURS = {"building": ((150, 140, 130), (120, 126, 138), (170, 158, 136), (105, 100, 98)),
+                "house": ((196, 180, 150), (178, 150, 130)), "tree": ((52, 110, 48),)}
+
+
+@dataclass(frozen=True)
+class Solid:
+    """One box to draw: centre (x, y) on the ground plane, heading ``yaw``, vertical extent ``z0``..``z1``.
+    ``emissive`` solids (lit lamps, sign faces) are not shaded and cover at least one pixel when in view;
+    ``front_only`` solids show only their face pointing along ``yaw`` (a lamp is dark from behind)."""
+
+    x: float
+    y: float
+    yaw: float
+    length: float
+    width: float
+    z0: float
+    z1: float
+    colour: tuple[float, float, float]
+    emissive: bool = False
+    front_only: bool = False
+
+
+_UNIT_CORNERS = np.array(
+    [[sx, sy, sz] for sz in (0, 1) for sy in (-1, 1) for sx in (-1, 1)], dtype=float
+)  # index = sx_bit + 2 * sy_bit + 4 * sz_bit
+_FACES = (  # (corner indices counter-clockwise seen from outside, local outward normal); front face first
+    ((1, 3, 7, 5), (1.0, 0.0, 0.0)),
+    ((0, 4, 6, 2), (-1.0, 0.0, 0.0)),
+    ((2, 6, 7, 3), (0.0, 1.0, 0.0)),
+    ((0, 1, 5, 4), (0.0, -1.0, 0.0)),
+    ((4, 5, 7, 6), (0.0, 0.0, 1.0)),
+    ((0, 2, 3, 1), (0.0, 0.0, -1.0)),
+)
+_FACE_CORNERS = np.array([corners for corners, _ in _FACES])
+_FACE_NORMALS = np.array([normal for _, normal in _FACES])
+
+
+class Camera:
+    """A front camera mounted on the ego: ``width`` × ``height`` pixels, horizontal field of view
+    ``hfov_deg``, at ``mount_height`` metres above the ground and ``mount_forward`` metres ahead of the
+    ego's centre, pitched down by ``pitch_deg``. :meth:`render` returns an ``(height, width, 3)`` uint8
+    image."""
+
+    def __init__(self, width: int = 160, height: int = 80, hfov_deg: float = 90.0, mount_height: float = 1.6,
+                 mount_forward: float = 0.8, pitch_deg: float = 0.0, max_range: float = 250.0):
+        if width < 8 or height < 8:
+            raise ValueError(f"camera image must be at least 8×8 pixels, got {width}×{height}")
+        if not 10.0 <= hfov_deg <= 170.0:
+            raise ValueError(f"camera hfov_deg must be between 10 and 170, got {hfov_deg}")
+        self.width, self.height = int(width), int(height)
+        self.mount_height, self.mount_forward = float(mount_height), float(mount_forward)
+        self.focal = (self.width / 2) / math.tan(math.radians(hfov_deg) / 2)
+        self.cx, self.cy = self.width / 2, self.height / 2
+        self.pitch = math.radians(pitch_deg)
+        self.max_range = float(max_range)
+        self.near = 0.05
+        self._precompute_ground()
+
+    def _precompute_ground(self) -> None:
+        u = (np.arange(self.width) + 0.5 - self.cx) / self.focal
+        v = (np.arange(self.height) + 0.5 - self.cy) / self.focal
+        right, down = np.meshgrid(u, v)
+        cp, sp = math.cos(self.pitch), math.sin(self.pitch)
+        forward_e = cp - down * sp
+        down_e = sp + down * cp
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = np.where(down_e > 1e-9, self.mount_height / down_e, np.inf)
+        fwd, left = t * forward_e, -t * right
+        dist = np.hypot(fwd, left)
+        hits = np.isfinite(t) & (dist <= self.max_range) & (fwd > 0)
+        self._ground_index = np.flatnonzero(hits)
+        self._ground_fwd = fwd.ravel()[self._ground_index] + self.mount_forward
+        self._ground_left = left.ravel()[self._ground_index]
+        haze = np.clip(dist.ravel()[self._ground_index] / self.max_range, 0.0, 1.0) ** 1.2 * 0.65
+        # Each ground pixel's colour for every material, hazed by its distance: (pixels, materials, rgb).
+        hazed = MATERIAL_COLOURS[None] * (1 - haze[:, None, None]) + HAZE * haze[:, None, None]
+        self._ground_lut = _to_uint8(hazed)
+        self._ground_rows = np.arange(len(self._ground_index))
+        # Sky: a vertical gradient by elevation, and haze at the horizon where the ground ran out of range.
+        elevation = np.clip(-down_e / np.maximum(np.hypot(forward_e, down_e), 1e-9), 0.0, 1.0)
+        blend = np.sqrt(elevation)[..., None]
+        background = SKY_HORIZON * (1 - blend) + SKY_TOP * blend
+        background[~hits & (down_e > 0)] = HAZE
+        self._background = _to_uint8(background.reshape(-1, 3))
+
+    # -- public -------------------------------------------------------------------------------------
+    def render(self, road: RoadGeometry, ego: EgoState, actors: Iterable[Actor] = (),
+               props: Sequence[Prop] | None = None) -> np.ndarray:
+        """The camera image of ``road`` with ``actors`` (and the road's scenery unless ``props`` is given)."""
+        image = self._background.copy()
+        c, s = math.cos(ego.yaw), math.sin(ego.yaw)
+        gx = ego.x + c * self._ground_fwd - s * self._ground_left
+        gy = ego.y + s * self._ground_fwd + c * self._ground_left
+        image[self._ground_index] = self._ground_lut[self._ground_rows, road.classify(gx, gy)]
+        image = image.reshape(self.height, self.width, 3)
+        groups = [solids_for_actor(a) for a in actors]
+        cam_x, cam_y, _ = self.camera_position(ego)
+        for i, prop in enumerate(road.props if props is None else props):
+            if math.hypot(prop.x - cam_x, prop.y - cam_y) <= PROP_RANGE:
+                groups.append(solids_for_prop(prop, i))
+        self._draw_groups(image, ego, groups)
+        return image
+
+    def camera_position(self, ego: EgoState) -> np.ndarray:
+        """World position (x, y, z) of the camera."""
+        x, y = ego.to_world_frame(self.mount_forward, 0.0)
+        return np.array([x, y, self.mount_height])
+
+    # -- drawing ------------------------------------------------------------------------------------
+    def _draw_groups(self, image: np.ndarray, ego: EgoState, groups: list[list[Solid]]) -> None:
+        cam = self.camera_position(ego)
+        ordered = []
+        for index, group in enumerate(groups):
+            if group:
+                gx = sum(sd.x for sd in group) / len(group)
+                gy = sum(sd.y for sd in group) / len(group)
+                ordered.append((-math.hypot(gx - cam[0], gy - cam[1]), index))
+        ordered.sort()
+        solids = [solid for _, index in ordered for solid in groups[index]]
+        if solids:
+            self._draw_solids(image, ego, cam, solids)
+
+    def _to_camera(self, ego: EgoState, points: np.ndarray) -> np.ndarray:
+        """World points (..., 3) → camera frame (..., 3): (right, down, depth along the optical axis)."""
+        c, s = math.cos(ego.yaw), math.sin(ego.yaw)
+        dx, dy = points[..., 0] - ego.x, points[..., 1] - ego.y
+        fwd = c * dx + s * dy - self.mount_forward
+        left = -s * dx + c * dy
+        down = self.mount_height - points[..., 2]
+        cp, sp = math.cos(self.pitch), math.sin(self.pitch)
+        return np.stack([-left, -fwd * sp + down * cp, fwd * cp + down * sp], axis=-1)
+
+    def _draw_solids(self, image: np.ndarray, ego: EgoState, cam: np.ndarray, solids: list[Solid]) -> None:
+        """Project every solid at once, cull what is out of view, then fill the visible faces in order."""
+        params = np.array([(sd.x, sd.y, sd.yaw, sd.length, sd.width, sd.z0, sd.z1) for sd in solids])
+        x, y, yaw, length, width, z0, z1 = params.T
+        c, s = np.cos(yaw)[:, None], np.sin(yaw)[:, None]
+        lx = _UNIT_CORNERS[:, 0] * (length[:, None] / 2)
+        ly = _UNIT_CORNERS[:, 1] * (width[:, None] / 2)
+        world = np.stack([x[:, None] + c * lx - s * ly, y[:, None] + s * lx + c * ly,
+                          np.where(_UNIT_CORNERS[:, 2] > 0, z1[:, None], z0[:, None])], axis=-1)
+        camera = self._to_camera(ego, world)  # (N, 8, 3)
+        depth = camera[..., 2]
+        all_front = np.all(depth > self.near, axis=1)
+        safe = np.where(depth > self.near, depth, 1.0)
+        u = self.cx + self.focal * camera[..., 0] / safe
+        v = self.cy + self.focal * camera[..., 1] / safe
+        off_image = (u.max(1) < 0) | (u.min(1) > self.width) | (v.max(1) < 0) | (v.min(1) > self.height)
+        keep = ~np.all(depth < self.near, axis=1) & ~(all_front & off_image)
+        normals = np.stack([c * _FACE_NORMALS[:, 0] - s * _FACE_NORMALS[:, 1],
+                            s * _FACE_NORMALS[:, 0] + c * _FACE_NORMALS[:, 1],
+                            np.broadcast_to(_FACE_NORMALS[:, 2], c.shape[:1] + (6,))], axis=-1)  # (N, 6, 3)
+        face_centres = world[:, _FACE_CORNERS].mean(axis=2)
+        facing = np.einsum("nfk,nfk->nf", normals, cam - face_centres) > 0.0
+        shade = 0.55 + 0.45 * np.clip(normals @ SUN, 0.0, None)
+        base = np.array([sd.colour for sd in solids], dtype=float)
+        emissive = np.array([sd.emissive for sd in solids])
+        shade[emissive] = 1.0
+        face_colours = _to_uint8(base[:, None, :] * shade[..., None])  # (N, 6, rgb)
+        for n in np.flatnonzero(keep):
+            solid = solids[n]
+            for f in range(1 if solid.front_only else 6):
+                if not facing[n, f]:
+                    continue
+                corners = _FACE_CORNERS[f]
+                if all_front[n]:
+                    pu, pv = u[n, corners], v[n, corners]
+                else:
+                    polygon = _clip_near(camera[n, corners], self.near)
+                    if len(polygon) < 3:
+                        continue
+                    pu = self.cx + self.focal * polygon[:, 0] / polygon[:, 2]
+                    pv = self.cy + self.focal * polygon[:, 1] / polygon[:, 2]
+                _fill_convex(image, pu.tolist(), pv.tolist(), face_colours[n, f], at_least_one=solid.emissive)
+
+
+def _clip_near(polygon: np.ndarray, near: float) -> np.ndarray:
+    """Sutherland–Hodgman clipping of a camera-frame polygon against the plane depth = ``near``."""
+    out = []
+    count = len(polygon)
+    for i in range(count):
+        a, b = polygon[i], polygon[(i + 1) % count]
+        a_in, b_in = a[2] >= near, b[2] >= near
+        if a_in:
+            out.append(a)
+        if a_in != b_in:
+            t = (near - a[2]) / (b[2] - a[2])
+            out.append(a + t * (b - a))
+    return np.array(out) if out else np.zeros((0, 3))
+
+
+def _fill_convex(image: np.ndarray, u: list[float], v: list[float], colour: np.ndarray,
+                 at_least_one: bool = False) -> int:
+    """Fill the convex polygon with vertices (u, v) in pixel coordinates: every pixel whose centre lies
+    inside is painted. Returns the number of pixels painted.
+
+    Each edge bounds the polygon's span on every pixel row from the left or from the right, so the
+    inside test is one interval per row instead of one half-plane test per pixel and edge.
+    """
+    height, width = image.shape[:2]
+    u0, u1 = max(math.floor(min(u)), 0), min(math.ceil(max(u)), width)
+    v0, v1 = max(math.floor(min(v)), 0), min(math.ceil(max(v)), height)
+    if u0 >= u1 or v0 >= v1:
+        return 0
+    count = len(u)
+    area = sum(u[i] * v[(i + 1) % count] - u[(i + 1) % count] * v[i] for i in range(count))
+    painted = 0
+    if abs(area) > 1e-12 and (u1 - u0) * (v1 - v0) <= _SMALL_BOX:
+        painted = _fill_small(image, u, v, 1.0 if area > 0 else -1.0, (u0, u1, v0, v1), colour)
+    elif abs(area) > 1e-12:
+        sign = 1.0 if area > 0 else -1.0
+        rows = _PIXEL_CENTRES[v0:v1]
+        lo = np.full(v1 - v0, -np.inf)
+        hi = np.full(v1 - v0, np.inf)
+        for i in range(count):
+            au, av, bu, bv = u[i], v[i], u[(i + 1) % count], v[(i + 1) % count]
+            # Inside when k * u + c >= 0 on a row at height `rows`.
+            k = -sign * (bv - av)
+            c = sign * ((bu - au) * (rows - av) + (bv - av) * au)
+            if k > 0.0:
+                lo = np.maximum(lo, -c / k)
+            elif k < 0.0:
+                hi = np.minimum(hi, -c / k)
+            else:
+                hi = np.where(c < 0.0, -np.inf, hi)
+        columns = _PIXEL_CENTRES[u0:u1]
+        inside = (columns >= lo[:, None]) & (columns <= hi[:, None])
+        painted = int(np.count_nonzero(inside))
+        if painted:
+            image[v0:v1, u0:u1][inside] = colour
+    centroid_u, centroid_v = sum(u) / count, sum(v) / count
+    coverage = abs(area) / 2
+    if not painted and coverage < 1.0 and 0 <= centroid_u < width and 0 <= centroid_v < height:
+        # A face smaller than a pixel can fall between pixel centres: a real sensor still sees it, as a
+        # pixel partly covered. Blend it into the pixel under its centroid by the area it covers
+        # (a lit lamp outshines the rest of its pixel).
+        coverage = 1.0 if at_least_one else coverage
+        cu, cv = int(centroid_u), int(centroid_v)
+        blended = image[cv, cu] * (1.0 - coverage) + np.asarray(colour, dtype=float) * coverage
+        image[cv, cu] = _to_uint8(blended) if image.dtype == np.uint8 else blended
+        painted = 1
+    return painted
+
+
+_PIXEL_CENTRES = np.arange(8192) + 0.5
+_SMALL_BOX = 16
+
+
+def _fill_small(image: np.ndarray, u: list[float], v: list[float], sign: float, box: tuple[int, int, int, int],
+                colour: np.ndarray) -> int:
+    """The same inside test as :func:`_fill_convex`, pixel by pixel: far cheaper for a few pixels."""
+    u0, u1, v0, v1 = box
+    count = len(u)
+    edges = [(u[i], v[i], u[(i + 1) % count] - u[i], v[(i + 1) % count] - v[i]) for i in range(count)]
+    painted = 0
+    for row in range(v0, v1):
+        pv = row + 0.5
+        for col in range(u0, u1):
+            pu = col + 0.5
+            if all(sign * (du * (pv - av) - dv * (pu - au)) >= 0.0 for au, av, du, dv in edges):
+                image[row, col] = colour
+                painted += 1
+    return painted
+
+
+def _to_uint8(values: np.ndarray) -> np.ndarray:
+    return np.clip(np.asarray(values) + 0.5, 0, 255).astype(np.uint8)
+
+
+# -- appearance of each kind ---------------------------------------------------------------------------
+
+
+def _offset(x: float, y: float, yaw: float, forward: float, left: float = 0.0) -> tuple[float, float]:
+    c, s = math.cos(yaw), math.sin(yaw)
+    return x + c * forward - s * left, y + s * forward + c * left
+
+
+def solids_for_actor(actor: Actor) -> list[Solid]:
+    """The boxes an actor is drawn with, bottom to top (the order they are painted in)."""
+    x, y, yaw, ln, wd, h = actor.x, actor.y, actor.yaw, actor.length, actor.width, actor.height
+    if actor.kind == "pedestrian":
+        return [
+            Solid(x, y, yaw, ln * 0.6, wd * 0.7, 0.0, h * 0.49, (44, 48, 74)),
+            Solid(x, y, yaw, ln, wd, h * 0.49, h * 0.86, (176, 48, 44)),
+            Solid(x, y, yaw, ln * 0.5, wd * 0.4, h * 0.86, h, (226, 186, 150)),
+        ]
+    if actor.kind == "car":
+        cx, cy = _offset(x, y, yaw, -0.08 * ln)
+        return [
+            Solid(x, y, yaw, ln * 0.82, wd * 0.96, 0.0, h * 0.22, (24, 24, 26)),
+            Solid(x, y, yaw, ln, wd, h * 0.22, h * 0.6, (58, 92, 168)),
+            Solid(cx, cy, yaw, ln * 0.55, wd * 0.9, h * 0.6, h, (62, 74, 92)),
+        ]
+    if actor.kind == "animal":
+        return [
+            Solid(x, y, yaw, ln * 0.7, wd * 0.6, 0.0, h * 0.4, (70, 52, 36)),
+            Solid(x, y, yaw, ln, wd, h * 0.4, h, (128, 92, 58)),
+        ]
+    if actor.kind == "traffic_light":
+        return _light_solids(actor)
+    if actor.kind == "stop_sign":
+        return _stop_sign_solids(actor)
+    return [Solid(x, y, yaw, ln, wd, 0.0, h, (200, 0, 200))]
+
+
+def _light_solids(actor: Actor) -> list[Solid]:
+    x, y, yaw, h = actor.x, actor.y, actor.yaw, actor.height
+    bottom = h - LIGHT_HEAD_HEIGHT
+    px, py = _offset(x, y, yaw, -actor.length / 2 - 0.1)
+    solids = [
+        Solid(px, py, yaw, 0.16, 0.16, 0.0, h, (88, 90, 92)),
+        Solid(x, y, yaw, actor.length, actor.width, bottom, h, (28, 30, 30)),
+    ]
+    lamp = min(actor.width * 0.7, LIGHT_HEAD_HEIGHT / 3 * 0.8)
+    lx, ly = _offset(x, y, yaw, actor.length / 2 + 0.03)
+    lamps = []
+    for i, colour in enumerate(LAMP_ORDER):
+        centre = h - LIGHT_HEAD_HEIGHT * (i + 0.5) / 3
+        lit = actor.state == colour
+        lamps.append(Solid(lx, ly, yaw, 0.06, lamp, centre - lamp / 2, centre + lamp / 2,
+                           LAMP_COLOURS[colour] if lit else LAMP_OFF[colour], emissive=lit, front_only=True))
+    return solids + sorted(lamps, key=lambda solid: solid.emissive)  # the lit lamp last: it outshines
+
+
+def _stop_sign_solids(actor: Actor) -> list[Solid]:
+    x, y, yaw, h = actor.x, actor.y, actor.yaw, actor.height
+    bottom = h - SIGN_PLATE_SIZE
+    px, py = _offset(x, y, yaw, -0.06)
+    bx, by = _offset(x, y, yaw, 0.03)
+    return [
+        Solid(px, py, yaw, 0.07, 0.07, 0.0, bottom + 0.1, (150, 150, 150)),
+        Solid(px, py, yaw, 0.04, SIGN_PLATE_SIZE, bottom, h, (140, 140, 140)),
+        Solid(x, y, yaw, 0.04, SIGN_PLATE_SIZE, bottom, h, (196, 22, 26), emissive=True, front_only=True),
+        Solid(bx, by, yaw, 0.02, SIGN_PLATE_SIZE * 0.7, bottom + SIGN_PLATE_SIZE * 0.4,
+              bottom + SIGN_PLATE_SIZE * 0.6, (240, 240, 240), front_only=True),
+    ]
+
+
+def solids_for_prop(prop: Prop, index: int) -> list[Solid]:
+    palette = PROP_COLOURS.get(prop.kind, ((128, 128, 128),))
+    colour = palette[index % len(palette)]
+    if prop.kind == "tree":
+        return [
+            Solid(prop.x, prop.y, prop.yaw, 0.35, 0.35, 0.0, prop.height * 0.4, (92, 66, 40)),
+            Solid(prop.x, prop.y, prop.yaw, prop.length, prop.width, prop.height * 0.4, prop.height, colour),
+        ]
+    return [Solid(prop.x, prop.y, prop.yaw, prop.length, prop.width, 0.0, prop.height, colour)]
+
+
+def count_pixels_differing(a: np.ndarray, b: np.ndarray) -> int:
+    """How many pixels differ between two images (any channel): an object's rendered footprint."""
+    return int(np.any(a != b, axis=-1).sum())
