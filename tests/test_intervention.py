@@ -282,7 +282,7 @@ def test_a_model_that_refuses_a_splice_gives_one_line(registry, tmp_path):
 
 
 @pytest.mark.parametrize("field, value, message", [
-    ("mode", "sideways", "--mode 'sideways' is not known"),
+    ("mode", "", "--mode must name a paradigm"),
     ("horizons", (2.0, -1.0), "--horizons must be positive"),
     ("alpha", 1.5, "--alpha"),
     ("seeds", (), "--seeds"),
@@ -291,6 +291,12 @@ def test_bad_configuration_values(registry, field, value, message):
     base = config(registry)
     with pytest.raises(ConfigError, match=message):
         dataclasses.replace(base, **{field: value})
+
+
+def test_an_unknown_paradigm_is_one_line_with_suggestions(registry, tmp_path):
+    with pytest.raises(UnknownNameError, match="unknown paradigm 'open-lop': did you mean 'open-loop'"):
+        InterventionRun(config(registry, mode="open-lop"), tmp_path / "x", registry=registry)
+    assert not (tmp_path / "x").exists()
 
 
 # -- resume, determinism, analysis from logs ----------------------------------------------------------
