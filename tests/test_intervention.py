@@ -334,3 +334,11 @@ def test_seed_plan_from_a_pilot(registry, tmp_path):
     assert set(plans) == {"pedestrian", "accel"}
     assert plans["accel"]["family_size"] == 2 and plans["accel"]["alpha"] == pytest.approx(0.025)
     assert plans["accel"]["seeds"] >= 2 and plans["accel"]["measure"] == "open-loop displacement @2s"
+
+
+def test_seed_plan_of_a_closed_loop_pilot_uses_the_last_checkpoint(registry, tmp_path):
+    results = InterventionRun(config(registry, mode="closed-loop", conditions=("car",), seeds=2,
+                                     model_options={"noise": 0.4}), tmp_path, registry=registry).run()
+    plans = seed_plan(results, effect_m=1.0, registry=registry)
+    assert [p["condition"] for p in plans] == ["car"]
+    assert plans[0]["measure"] == "closed-loop distance @5.9s" and plans[0]["pilot_seeds"] == 2

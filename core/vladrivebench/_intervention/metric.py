@@ -23,8 +23,6 @@ from typing import Any
 from vladrivebench._analysis.tables import Cell, Row, Table
 from vladrivebench._intervention.stats import from_json_number
 
-SELFSPLICE = "selfsplice"
-
 
 # -- formatting -----------------------------------------------------------------------------------------
 def signed(value: Any, digits: int = 3) -> str:
