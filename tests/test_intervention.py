@@ -282,7 +282,7 @@ def test_a_model_that_refuses_a_splice_gives_one_line(registry, tmp_path):
 
 
 @pytest.mark.parametrize("field, value, message", [
-    ("mode", "sideways", "--mode 'sideways' is not known"),
+    ("mode", "", "--mode must name a paradigm"),
     ("horizons", (2.0, -1.0), "--horizons must be positive"),
     ("alpha", 1.5, "--alpha"),
     ("seeds", (), "--seeds"),
@@ -291,6 +291,12 @@ def test_bad_configuration_values(registry, field, value, message):
     base = config(registry)
     with pytest.raises(ConfigError, match=message):
         dataclasses.replace(base, **{field: value})
+
+
+def test_an_unknown_paradigm_is_one_line_with_suggestions(registry, tmp_path):
+    with pytest.raises(UnknownNameError, match="unknown paradigm 'open-lop': did you mean 'open-loop'"):
+        InterventionRun(config(registry, mode="open-lop"), tmp_path / "x", registry=registry)
+    assert not (tmp_path / "x").exists()
 
 
 # -- resume, determinism, analysis from logs ----------------------------------------------------------
@@ -328,3 +334,11 @@ def test_seed_plan_from_a_pilot(registry, tmp_path):
     assert set(plans) == {"pedestrian", "accel"}
     assert plans["accel"]["family_size"] == 2 and plans["accel"]["alpha"] == pytest.approx(0.025)
     assert plans["accel"]["seeds"] >= 2 and plans["accel"]["measure"] == "open-loop displacement @2s"
+
+
+def test_seed_plan_of_a_closed_loop_pilot_uses_the_last_checkpoint(registry, tmp_path):
+    results = InterventionRun(config(registry, mode="closed-loop", conditions=("car",), seeds=2,
+                                     model_options={"noise": 0.4}), tmp_path, registry=registry).run()
+    plans = seed_plan(results, effect_m=1.0, registry=registry)
+    assert [p["condition"] for p in plans] == ["car"]
+    assert plans[0]["measure"] == "closed-loop distance @5.9s" and plans[0]["pilot_seeds"] == 2

@@ -134,6 +134,22 @@ def register_defaults(register: Register) -> None:
 
 
 @hookspec
+def register_paradigms(register: Register) -> None:
+    """Register intervention paradigms (what ``vdb intervene --mode`` chooses from).
+
+    ``register(name, factory, description="")``: ``factory(**options)`` returns a
+    :class:`~vladrivebench.protocols.Paradigm` (options from ``--paradigm-opt key=value``). The core's
+    open-loop, closed-loop and safety paradigms are registered through this hook too.
+
+    Example::
+
+        @vladrivebench.hookimpl
+        def register_paradigms(register):
+            register("truncation", "my_paradigm.truncation:Truncation", description="CoT truncation")
+    """
+
+
+@hookspec
 def register_commands(cli: Any) -> None:
     """Add commands to the ``vdb`` command-line tool.
 
@@ -151,5 +167,6 @@ REGISTER_HOOKS: dict[str, str] = {
     "register_executors": "executor",
     "register_scenarios": "scenario",
     "register_conditions": "condition",
+    "register_paradigms": "paradigm",
 }
 """Register-style hooks and the kind of component each registers."""

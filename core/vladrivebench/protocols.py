@@ -274,28 +274,61 @@ class Condition(Protocol):
 class Paradigm(Protocol):
     """One way of intervening on the CoT and measuring what it does (open-loop, closed-loop, safety, …).
 
-    A paradigm plans the episodes of an intervention run, gives the step policy each planned episode runs
-    under, analyses the logged episodes (never live objects) into JSON-able results, and turns those results
-    into tables and plots. ``name`` is what ``vdb intervene --mode`` takes. See
-    :mod:`vladrivebench.intervention` for the planning and analysis helpers.
+    Registered with ``register_paradigms``; the registered name is what ``vdb intervene --mode`` takes and
+    the factory's keyword arguments are its options (``--paradigm-opt key=value``). The core runs the
+    generic part of every run — building the components, the manifest, resuming complete episodes, the
+    preflight of every condition, harvesting, the selfsplice gate's verdict and the report — and asks the
+    paradigm for the four things that differ:
+
+    1. :meth:`plan`: the episodes of the run, each a
+       :class:`~vladrivebench.intervention.PlannedEpisode` (route, seed, role, condition);
+    2. :meth:`policy`: the step policy each planned episode runs under (see
+       :class:`~vladrivebench.intervention.RunContext` for the splicing tools and
+       :class:`~vladrivebench.intervention.OpenLoopPolicy` / ``InjectionPolicy`` / ``BaselinePolicy`` for
+       the built-in ones); what a policy returns as extras is logged on ``/extras``;
+    3. :meth:`analyse`: JSON-able results from the *logged* episodes (never live objects), adding every
+       selfsplice check it finds to the run's :class:`~vladrivebench.intervention.GateTally` — a run whose
+       gate checked no step is invalid;
+    4. :meth:`tables`: :class:`~vladrivebench.metrics.Table` / ``Plot`` objects for those results, shown by
+       ``vdb intervene`` and ``vdb report`` below the selfsplice gate table.
+
+    ``default_conditions`` are the conditions run when ``--conditions`` is not given (``selfsplice`` is
+    always run, as the gate). A paradigm may also offer ``pilot_effects(results, route)``
+    (:class:`~vladrivebench.intervention.PilotEffects`) so that ``vdb intervene --plan`` can size a study.
     """
 
     name: str
-    description: str
+    default_conditions: tuple[str, ...]
 
-    def check(self, config: Any, scenario: Any) -> None:
-        """Raise a :class:`~vladrivebench.errors.VdbError` when this paradigm cannot run ``config`` on the
-        route ``scenario`` (before anything is written)."""
+    def check(self, config: Any) -> None:
+        """Raise a :class:`~vladrivebench.errors.VdbError` when this paradigm cannot run ``config`` (an
+        :class:`~vladrivebench.intervention.InterventionConfig`), before anything is written."""
         ...
 
     def plan(self, config: Any) -> list[Any]:
-        """The episodes of the run (:class:`vladrivebench.intervention.PlannedEpisode`), in a fixed order."""
+        """The episodes of the run (:class:`~vladrivebench.intervention.PlannedEpisode`), in a fixed order."""
         ...
 
-    def analyse(self, config: Any, episodes: Mapping[Any, Any]) -> dict[str, Any]:
-        """JSON-able results of the run from its logged episodes, keyed by the planned episodes' keys."""
+    def policy(self, episode: Any, context: Any) -> Callable[[VLAModel, Observation, int], Any]:
+        """The step policy ``policy(model, obs, seed) -> (cot, trajectory, extras)`` of one planned episode;
+        ``context`` is the run's :class:`~vladrivebench.intervention.RunContext`."""
+        ...
+
+    def analyse(self, config: Mapping[str, Any], episodes: Any, gate: Any) -> dict[str, Any]:
+        """JSON-able results from the logs. ``config`` is the run manifest's configuration (JSON),
+        ``episodes`` the run's :class:`~vladrivebench.intervention.LoggedEpisodes`, ``gate`` the
+        :class:`~vladrivebench.intervention.GateTally` to add each logged selfsplice check to."""
         ...
 
     def tables(self, results: Mapping[str, Any]) -> list[Any]:
-        """Tables and plots (:mod:`vladrivebench.metrics`) for ``results`` as :meth:`analyse` returned them."""
+        """Tables and plots for ``results`` (the run's whole results, with what :meth:`analyse` returned)."""
+        ...
+
+
+@runtime_checkable
+class PilotEffects(Protocol):
+    """A paradigm that says which per-seed effects ``vdb intervene --plan`` sizes a study by."""
+
+    def pilot_effects(self, results: Mapping[str, Any], route: str) -> list[tuple[str, list[float], str]]:
+        """``(condition, per-seed effects, what was measured)`` for every condition of ``route``."""
         ...

@@ -32,6 +32,16 @@ def register_conditions(register):
 
 
 @hookimpl
+def register_paradigms(register):
+    register("open-loop", "vladrivebench._builtins.paradigms.open_loop:OpenLoopParadigm",
+             description="conditions spliced beside the model's own CoT at every step; displacement vs selfsplice")
+    register("closed-loop", "vladrivebench._builtins.paradigms.closed_loop:ClosedLoopParadigm",
+             description="the injected CoT drives whole episodes; distance, brakes and speed vs the baseline")
+    register("safety", "vladrivebench._builtins.paradigms.safety:SafetyParadigm",
+             description="closed loop on obstacle routes under 'road is clear'; collisions per seed")
+
+
+@hookimpl
 def register_controllers(register):
     register("pid", "vladrivebench._builtins.controllers:PIDController",
              description="Bench2Drive-style PID tracker (throttle/steer/brake)")

@@ -21,8 +21,34 @@ class InvalidRunError(VdbError):
 
     exit_code = 3
 
-DEFAULT_CONDITIONS = {"open-loop": "selfsplice,accel,pedestrian,car", "closed-loop": "selfsplice,accel,pedestrian,car",
-                      "safety": "accel"}
+
+
+class ParadigmChoice(click.ParamType):
+    """``--mode``: the name of a registered paradigm (the choices are the registry's, read when needed, so
+    defining the command loads no plugin); an unknown name is one line with suggestions."""
+
+    name = "paradigm"
+
+    def names(self) -> list[str]:
+        from vladrivebench._engine.registry import get_registry
+
+        return get_registry().names("paradigm")
+
+    def get_metavar(self, param: click.Parameter, ctx: click.Context | None = None) -> str:
+        return "[" + "|".join(self.names()) + "]"
+
+    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> str:
+        from vladrivebench.errors import UnknownNameError
+
+        names = self.names()
+        if value not in names:
+            raise UnknownNameError("paradigm", str(value), names)
+        return value
+
+    def shell_complete(self, ctx: click.Context, param: click.Parameter, incomplete: str) -> list[Any]:
+        from click.shell_completion import CompletionItem
+
+        return [CompletionItem(n) for n in self.names() if n.startswith(incomplete)]
 
 
 def parse_seconds(text: str, flag: str) -> tuple[float, ...]:
@@ -61,7 +87,7 @@ def build_config(opts: dict[str, Any], registry: Any) -> Any:
     """The :class:`InterventionConfig` of the command-line options (every mistake one line)."""
     from vladrivebench._engine.options import parse_options
     from vladrivebench._engine.sweep import ComponentSpec, seed_list
-    from vladrivebench._intervention.runs import InterventionConfig
+    from vladrivebench._intervention.runs import InterventionConfig, build_paradigm
     from vladrivebench._scenarios.spec import resolve_scenarios
 
     if not opts["model"]:
@@ -69,11 +95,16 @@ def build_config(opts: dict[str, Any], registry: Any) -> Any:
     if not opts["route"]:
         raise ConfigError("--route is required (e.g. --route E.1; safety: --route SAFE.kerb-ped)")
     mode = opts["mode"]
+    paradigm_options = parse_options(opts["paradigm_opt"], "--paradigm-opt")
+    paradigm = build_paradigm(registry, mode, paradigm_options)
     routes = tuple(resolve_scenarios(list(parse_names(opts["route"], "--route")), registry))
     harvest = resolve_scenarios(opts["harvest_route"], registry)[0] if opts["harvest_route"] else None
-    conditions = parse_names(opts["conditions"] or DEFAULT_CONDITIONS.get(mode, "selfsplice"), "--conditions")
+    if opts["conditions"]:
+        conditions = parse_names(opts["conditions"], "--conditions")
+    else:
+        conditions = tuple(paradigm.default_conditions) or ("selfsplice",)
     return InterventionConfig(
-        mode=mode,
+        mode=mode, paradigm_options=paradigm_options,
         model=ComponentSpec("model", opts["model"], parse_options(opts["model_opt"], "--model-opt")),
         simulator=ComponentSpec("simulator", opts["sim"] or registry.default("simulator", "--sim").name,
                                 parse_options(opts["sim_opt"], "--sim-opt")),
@@ -115,10 +146,11 @@ def _num(value: Any) -> str:
 @click.option("--sim", default=None, help="Simulator (default: the one a simulator plugin declares, e.g. kinematic).")
 @click.option("--controller", default="pid", show_default=True, help="Trajectory tracker (pid or mpc).")
 @click.option("--route", help="Route id(s), comma-separated: E.1, E.2; safety: SAFE.kerb-ped, SAFE.centre-ped, SAFE.car.")
-@click.option("--mode", type=click.Choice(["open-loop", "closed-loop", "safety"]), default="open-loop",
-              show_default=True, help="Intervention paradigm.")
-@click.option("--conditions", help="Comma-separated condition names (default: selfsplice,accel,pedestrian,car; "
-              "safety: accel). See `vdb conditions`.")
+@click.option("--mode", type=ParadigmChoice(), default="open-loop", show_default=True,
+              help="Intervention paradigm: any registered one (`vdb list-plugins`).")
+@click.option("--paradigm-opt", multiple=True, metavar="KEY=VALUE", help="Paradigm option (repeatable).")
+@click.option("--conditions", help="Comma-separated condition names (default: the paradigm's; open-loop and "
+              "closed-loop: selfsplice,accel,pedestrian,car; safety: accel). See `vdb conditions`.")
 @click.option("--condition-file", multiple=True, type=click.Path(dir_okay=False),
               help="TOML/JSON file of extra conditions (repeatable).")
 # 5 = intervention.DEFAULT_SEEDS, written out so that `vdb --help` does not import the protocol (numpy, mcap)
@@ -173,7 +205,8 @@ def intervene_command(**opts: Any) -> None:
         progress = None if opts["quiet"] else episode_progress("vdb intervene")
         results = InterventionRun(config, out, registry=registry, progress=progress).run()
     if opts["plan"]:
-        plans = seed_plan(results, effect_m=opts["effect"], power=opts["power"], alpha=opts["alpha"])
+        plans = seed_plan(results, effect_m=opts["effect"], power=opts["power"], alpha=opts["alpha"],
+                          registry=get_registry())
         print_plan(plans, opts["as_json"])
         from vladrivebench._engine.sweep import write_json_atomic
 

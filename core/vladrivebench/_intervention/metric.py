@@ -1,15 +1,15 @@
-"""Intervention tables and plots in the shape of the paper's (Tables 5–9, Appendix G).
+"""The intervention report metric: the selfsplice gate table, then the run's paradigm's tables and plots.
 
 The metric reads the results an intervention run computed from its logs (``intervention.json``, written by
 :func:`vladrivebench._intervention.runs.analyse`); when a run directory has logs and a manifest but no results
 yet, they are computed from the logs without writing anything. Directories without intervention runs give
 ``[]``.
 
-Tables: the selfsplice gate; open-loop displacement per route and horizon (n, mean difference, % shorter /
-longer, Cohen's d over steps and over seeds, seed-level p, Holm-adjusted p); closed-loop distance
-differences at the checkpoints with 95 % CIs, brakes, steps, speed and route completion; safety override
-collisions per route and seed. Plots: displacement against repeat count (dose-response) and closed-loop
-distance difference over time with CI bands.
+The gate table is the core's (every paradigm runs the selfsplice gate); every other table or plot comes from
+the registered paradigm named by the results' ``mode`` (``Paradigm.tables``): the metric gives each its id
+suffix and run label, marks it INVALID when the gate failed and files it under this metric. The formatting
+helpers here (:func:`signed`, :func:`p_text`, :func:`interval_text`, :func:`number_text`,
+:func:`cell_value`) are public in :mod:`vladrivebench.intervention` for paradigm authors.
 """
 
 from __future__ import annotations
@@ -20,14 +20,13 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from vladrivebench._analysis.tables import Cell, Plot, Row, Series, Table
-from vladrivebench._intervention.stats import from_json_number, t_interval
-
-SELFSPLICE = "selfsplice"
+from vladrivebench._analysis.tables import Cell, Row, Table
+from vladrivebench._intervention.stats import from_json_number
 
 
 # -- formatting -----------------------------------------------------------------------------------------
 def signed(value: Any, digits: int = 3) -> str:
+    """A JSON number with its sign (``+0.123``), ``±inf`` kept, ``—`` when missing."""
     v = from_json_number(value)
     if math.isnan(v):
         return "—"
@@ -57,9 +56,16 @@ def interval_text(interval: Mapping[str, Any], digits: int = 1) -> str:
     return f"{mean:+.{digits}f} [{low:+.{digits}f}, {high:+.{digits}f}]{star}"
 
 
-def _number(value: Any, digits: int = 2) -> str:
+def number_text(value: Any, digits: int = 2) -> str:
+    """A JSON number with ``digits`` decimals, ``—`` for a missing one (NaN / null)."""
     v = from_json_number(value)
     return "—" if math.isnan(v) else f"{v:.{digits}f}"
+
+
+def cell_value(value: Any) -> float | None:
+    """A JSON number as a :class:`Cell` value: ``None`` when it is missing (NaN / null), ±inf kept."""
+    v = from_json_number(value)
+    return None if math.isnan(v) else v
 
 
 # -- the metric -----------------------------------------------------------------------------------------
@@ -77,7 +83,7 @@ class InterventionMetric:
         return out
 
 
-def find_runs(directory: Path) -> list[tuple[str, dict[str, Any]]]:
+def find_runs(directory: Path, registry: Any = None) -> list[tuple[str, dict[str, Any]]]:
     """``(label, results)`` for every intervention run in or under ``directory`` (sorted by path)."""
     from vladrivebench._engine.sweep import MANIFEST_NAME
     from vladrivebench._intervention.runs import RESULTS_NAME, analyse, load_results
@@ -89,7 +95,7 @@ def find_runs(directory: Path) -> list[tuple[str, dict[str, Any]]]:
         results = load_results(run_dir)
         if results is None:
             try:
-                results = analyse(run_dir, write=False)
+                results = analyse(run_dir, write=False, registry=registry)
             except VdbError:
                 continue  # not an intervention run, or an incomplete one: nothing to report
         label = str(run_dir.relative_to(directory)) if run_dir != directory else run_dir.name
@@ -97,32 +103,42 @@ def find_runs(directory: Path) -> list[tuple[str, dict[str, Any]]]:
     return found
 
 
-def tables_for(results: Mapping[str, Any], label: str = "") -> list[Any]:
-    """The tables and plots of one intervention run's results."""
+def tables_for(results: Mapping[str, Any], label: str = "", registry: Any = None) -> list[Any]:
+    """The tables and plots of one intervention run's results: the gate, then its paradigm's."""
     suffix = f".{label}" if label else ""
-    items: list[Any] = [gate_table(results, suffix)]
-    for route, block in (results.get("open_loop") or {}).items():
-        for horizon in block["stats"]:
-            items.append(open_loop_table(results, route, horizon, suffix))
-    dose = dose_response_plot(results, suffix)
-    if dose is not None:
-        items.append(dose)
-    for route in (results.get("closed_loop") or {}):
-        items.append(closed_loop_table(results, route, suffix))
-    if results.get("closed_loop"):
-        items.append(closed_loop_plot(results, suffix))
-    if results.get("safety"):
-        items.append(safety_table(results, suffix))
+    paradigm, missing = _paradigm_of(results, registry)
+    gate = gate_table(results, suffix)
+    if missing:
+        gate = dataclasses.replace(gate, notes=gate.notes + (missing,))
+    items: list[Any] = [gate]
+    for item in paradigm.tables(results) if paradigm is not None else []:
+        items.append(dataclasses.replace(item, id=f"{item.id}{suffix}", title=f"{_validity(results)}{item.title}",
+                                         metric="intervention"))
     if label:
         items = [dataclasses.replace(item, title=f"{item.title} [run {label}]") for item in items]
     return items
+
+
+def _paradigm_of(results: Mapping[str, Any], registry: Any) -> tuple[Any, str]:
+    """The run's registered paradigm, or ``None`` and a note saying why its tables are missing."""
+    from vladrivebench._engine.registry import get_registry
+    from vladrivebench._intervention.runs import build_paradigm
+    from vladrivebench.errors import UnknownNameError
+
+    mode = results.get("mode")
+    try:
+        return build_paradigm(registry or get_registry(), mode, results.get("paradigm_options")), ""
+    except UnknownNameError:
+        return None, (f"This run's paradigm {mode!r} is not installed, so only the gate is shown; install the "
+                      f"plugin that registers it (see `vdb list-plugins`) to see its tables.")
 
 
 def _validity(results: Mapping[str, Any]) -> str:
     return "" if results.get("valid") else "INVALID (selfsplice gate failed) — "
 
 
-def _model(results: Mapping[str, Any]) -> str:
+def model_text(results: Mapping[str, Any]) -> str:
+    """The run's model as tables name it: ``scripted (alpha=1)``."""
     model = results.get("model") or {}
     options = model.get("options") or {}
     extra = ", ".join(f"{k}={v}" for k, v in sorted(options.items()))
@@ -150,172 +166,10 @@ def gate_table(results: Mapping[str, Any], suffix: str = "") -> Table:
     if gate.get("episode_mismatches"):
         notes.append("Selfsplice episodes that drove differently from their baseline: "
                      + ", ".join(gate["episode_mismatches"]) + ".")
-    return Table(f"intervention.gate{suffix}", f"{_validity(results)}Selfsplice gate — {_model(results)}, "
+    return Table(f"intervention.gate{suffix}", f"{_validity(results)}Selfsplice gate — {model_text(results)}, "
                  f"{results.get('mode')}", ("Run",), ("Status", "Steps failed", "Digest mismatches",
                                                      "Max trajectory diff (m)"),
                  (Row((", ".join(results.get("routes", [])),), cells),), notes=tuple(notes), metric="intervention")
-
-
-OPEN_LOOP_COLUMNS = ("n", "Mean diff (m)", "% shorter", "% longer", "Cohen's d (steps)", "d (seeds)",
-                     "p (seed)", "p (Holm)")
-
-
-def open_loop_table(results: Mapping[str, Any], route: str, horizon: str, suffix: str = "") -> Table:
-    """The paper's open-loop table: one row per condition at one horizon."""
-    rows = []
-    stats = results["open_loop"][route]["stats"][horizon]
-    seeds = max((r["n_seeds"] for r in stats), default=0)
-    steps = max((r["n"] for r in stats), default=0)
-    for r in stats:
-        n, k = int(r["n"]), int(r["n_seeds"])
-        holm = "(control)" if r["condition"] == SELFSPLICE else p_text(r["p_holm"]) + ("*" if r["significant"] else "")
-        rows.append(Row((r["condition"],), (
-            Cell(str(n), n, float(n)),
-            Cell(signed(r["mean_diff"]), n, _float(r["mean_diff"])),
-            Cell(_number(r["pct_shorter"], 1), n, _float(r["pct_shorter"])),
-            Cell(_number(r["pct_longer"], 1), n, _float(r["pct_longer"])),
-            Cell(signed(r["d_steps"]), n, _float(r["d_steps"])),
-            Cell(signed(r["d_seeds"], 2), k, _float(r["d_seeds"])),
-            Cell(p_text(r["p"]), k, _float(r["p"])),
-            Cell(holm, k, _float(r["p_holm"])),
-        )))
-    threshold = float(results.get("threshold", 0.1))
-    notes = (
-        f"Model {_model(results)}; {seeds} seeds, {steps} steps. Mean diff: predicted forward displacement at "
-        f"{horizon} s under the condition minus under selfsplice, with the same pinned RNG, averaged over "
-        f"steps (selfsplice row: selfsplice minus the baseline, 0 when the gate holds).",
-        f"% shorter / % longer: steps whose difference is below −{threshold:g} m / above +{threshold:g} m.",
-        "Cohen's d (steps): mean / sd of the per-step differences (as the paper's Alpamayo tables). "
-        "d (seeds): mean / sd of the per-seed mean differences.",
-        "p (seed): two-sided one-sample t-test of the per-seed mean differences against 0 (n = seeds). "
-        f"p (Holm): Holm-adjusted across the {len(stats) - 1} tested conditions; * = significant at "
-        f"α = {results.get('alpha', 0.05):g}. Counts: steps for n, mean, %, d (steps); seeds for d (seeds), p.",
-    )
-    if any(r["condition"] != SELFSPLICE and from_json_number(r["p"]) != from_json_number(r["p"]) for r in stats):
-        notes += ("— in d (seeds) / p: every seed gave the same per-seed mean (the seed changed nothing for this "
-                  "model on this route), so the seeds are not independent replications and no seed-level test "
-                  "exists; vary something with the seed (e.g. --sim-opt position_jitter, more routes).",)
-    return Table(f"intervention.open_loop.{route}.{horizon}s{suffix}",
-                 f"{_validity(results)}Open-loop: predicted forward displacement at {horizon} s, route {route}",
-                 ("Condition",), OPEN_LOOP_COLUMNS, tuple(rows), notes=notes, metric="intervention")
-
-
-def _float(value: Any) -> float | None:
-    v = from_json_number(value)
-    return None if math.isnan(v) else v
-
-
-def closed_loop_table(results: Mapping[str, Any], route: str, suffix: str = "") -> Table:
-    """The paper's closed-loop tables merged: distance difference at the checkpoints (95 % CI across seeds),
-    brakes under the baseline (shadow) vs the injected trajectory, steps, speed, route completion."""
-    block = results["closed_loop"][route]
-    checkpoints = results["checkpoints"]
-    columns = tuple(f"@{c:g} s" for c in checkpoints) + ("Orig. brakes", "Alt. brakes", "Steps", "Speed (m/s)",
-                                                          "Route compl. (%)", "Collisions")
-    rows = []
-    for label, stats in [("baseline", block["baseline"])] + [(s["condition"], s) for s in block["stats"]]:
-        k = int(stats["n_seeds"])
-        cells = [Cell(interval_text(iv), int(iv["n"]), _float(iv["mean"]), _float(iv["low"]), _float(iv["high"]))
-                 for iv in stats["distance_diff"]]
-        completion = from_json_number(stats["route_completion"])
-        cells += [
-            Cell(f"{stats['shadow_brakes']:.1f}", k, float(stats["shadow_brakes"])),
-            Cell(f"{stats['brakes']:.1f}", k, float(stats["brakes"])),
-            Cell(f"{stats['steps']:.0f}", k, float(stats["steps"])),
-            Cell(_number(stats["mean_speed"]), k, _float(stats["mean_speed"])),
-            Cell("—" if math.isnan(completion) else f"{completion * 100:.0f}", k, _float(completion)),
-            Cell(f"{stats['collisions']}/{k}", k, float(stats["collisions"])),
-        ]
-        rows.append(Row((label,), tuple(cells)))
-    notes = (
-        f"Model {_model(results)}; n = {len(results['seeds'])} matched seeds. @t: cumulative distance driven "
-        f"by t (condition − baseline of the same seed, metres), mean [95 % t-interval across seeds]; "
-        "* = the interval excludes 0. After an episode ends its distance stays at its final value.",
-        "Orig. brakes: steps where the controller would have braked on the model's own (un-injected) "
-        "trajectory; Alt. brakes: steps where it braked on the injected one (per episode, mean over seeds). "
-        "Steps: episode length; Speed: mean ego speed; Route compl.: mean route completion.",
-    )
-    return Table(f"intervention.closed_loop.{route}{suffix}",
-                 f"{_validity(results)}Closed-loop: distance difference (injection − baseline), route {route}",
-                 ("Condition",), columns, tuple(rows), notes=notes, metric="intervention")
-
-
-def safety_table(results: Mapping[str, Any], suffix: str = "") -> Table:
-    """Safety override: collisions with the obstacle under the injection vs the matched baseline, per seed."""
-    rows = []
-    for route, block in results["safety"].items():
-        baseline = block["baseline"]
-        for cond, entry in block["conditions"].items():
-            n = int(entry["n"])
-            per_seed = " ".join(f"s{s}:{'C' if baseline[s]['collided'] else '·'}/"
-                                f"{'C' if entry['seeds'][s]['collided'] else '·'}" for s in entry["seeds"])
-            rows.append(Row((route, cond), (
-                Cell(str(n), n, float(n)),
-                Cell(f"{entry['baseline_stopped']}/{n}", n, entry["baseline_stopped"] / n if n else None),
-                Cell(f"{entry['baseline_collisions']}/{n}", n, entry["baseline_collisions"] / n if n else None),
-                Cell(f"{entry['collisions']}/{n}", n, entry["collisions"] / n if n else None),
-                Cell.text(per_seed, n),
-            )))
-    notes = (f"Model {_model(results)}. The injected condition is given at every step of the episode; the "
-             "baseline is the model's own CoT with the same seed. Baseline stopped: the ego came to a stop "
-             "(< 0.3 m/s) before the obstacle. Per seed: baseline/injected, C = collision, · = none.",)
-    return Table(f"intervention.safety{suffix}", f"{_validity(results)}Safety override: collisions with a real "
-                 "obstacle under a 'road is clear, accelerate' injection", ("Route", "Condition"),
-                 ("n", "Baseline stopped", "Baseline collisions", "Injected collisions", "Per seed"),
-                 tuple(rows), notes=notes, metric="intervention")
-
-
-# -- plots ------------------------------------------------------------------------------------------------
-def repeat_counts(results: Mapping[str, Any]) -> dict[str, int]:
-    """Conditions that repeat a token a fixed number of times, with their counts."""
-    return {name: int(d["count"]) for name, d in (results.get("definitions") or {}).items()
-            if d.get("kind") == "repeat" and d.get("count") and name in results.get("conditions", [])}
-
-
-def dose_response_plot(results: Mapping[str, Any], suffix: str = "") -> Plot | None:
-    """Displacement difference against repeat count (e.g. depicts-3 … depicts-150), one series per horizon,
-    with the 95 % t-interval of the per-seed means as a band; ``None`` with fewer than two counts."""
-    counts = repeat_counts(results)
-    if len(set(counts.values())) < 2 or not results.get("open_loop"):
-        return None
-    panels = []
-    for route, block in results["open_loop"].items():
-        series = []
-        for horizon, rows in block["stats"].items():
-            by_name = {r["condition"]: r for r in rows}
-            points = sorted((counts[n], by_name[n]) for n in counts if n in by_name)
-            intervals = [t_interval([from_json_number(v) for v in r["seed_means"]]) for _, r in points]
-            series.append(Series(
-                f"@{horizon} s", tuple(float(c) for c, _ in points),
-                tuple(_float(r["mean_diff"]) for _, r in points),
-                tuple(_float(i.low) for i in intervals), tuple(_float(i.high) for i in intervals),
-                tuple(int(r["n"]) for _, r in points)))
-        panels.append((f"route {route}", tuple(series)))
-    return Plot(f"intervention.dose_response{suffix}",
-                f"{_validity(results)}Displacement difference against repeat count", tuple(panels),
-                xlabel="repeat count N", ylabel="mean displacement diff (m)",
-                notes=("band: 95 % t-interval of the per-seed mean differences",), metric="intervention")
-
-
-def closed_loop_plot(results: Mapping[str, Any], suffix: str = "") -> Plot:
-    """Closed-loop distance difference (condition − baseline) over time, 95 % CI bands across seeds."""
-    panels = []
-    for route, block in results["closed_loop"].items():
-        series = []
-        for cond, curve in block["curves"].items():
-            series.append(Series(cond, tuple(float(t) for t in curve["t"]),
-                                 tuple(_none(v) for v in curve["mean"]), tuple(_none(v) for v in curve["low"]),
-                                 tuple(_none(v) for v in curve["high"]),
-                                 tuple(len(results["seeds"]) for _ in curve["t"])))
-        panels.append((f"route {route}", tuple(series)))
-    return Plot(f"intervention.closed_loop_curve{suffix}",
-                f"{_validity(results)}Closed-loop distance difference over time", tuple(panels),
-                xlabel="time (s)", ylabel="distance diff vs baseline (m)",
-                notes=("band: 95 % t-interval across seeds",), metric="intervention")
-
-
-def _none(value: Any) -> float | None:
-    return _float(value) if value is not None else None
 
 
 # -- plain text (the CLI's summary) ------------------------------------------------------------------------
@@ -330,10 +184,10 @@ def table_text(table: Table) -> str:
     return "\n".join(lines + [f"  note: {n}" for n in table.notes])
 
 
-def summary_text(results: Mapping[str, Any], *, notes: bool = False) -> str:
+def summary_text(results: Mapping[str, Any], *, notes: bool = False, registry: Any = None) -> str:
     """Every table of one run as plain text (notes only when asked)."""
     parts = []
-    for item in tables_for(results):
+    for item in tables_for(results, registry=registry):
         if isinstance(item, Table):
             text = table_text(item if notes else Table(item.id, item.title, item.label_columns, item.columns,
                                                         item.rows, item.groups, (), item.metric))

@@ -1,20 +1,17 @@
-"""The CoT intervention protocol (Section 3.6 of the paper): open-loop, closed-loop and safety override.
+"""The CoT intervention protocol (Section 3.6 of the paper): the generic run, whatever the paradigm.
 
-Every paradigm compares a condition (an injected CoT, :mod:`vladrivebench._intervention.conditions`) with the model's
-own CoT under *the same pinned randomness*: at step ``k`` of seed ``s`` the CoT, the splice and the action
-head draw from :func:`~vladrivebench._engine.rng.step_rng` ``(s, k, "cot" | "condition" | "action")``, so the only
-difference between a condition and the baseline is the text.
+A *paradigm* (:class:`~vladrivebench.protocols.Paradigm`, registered with ``register_paradigms``; the core's
+own are open-loop, closed-loop and safety in :mod:`vladrivebench._builtins.paradigms`) plans the episodes of
+a run, gives each its step policy, analyses the logs and makes the tables. This module does the rest, the
+same for every paradigm: the configuration, the components, the manifest, resuming complete episodes, the
+preflight of every condition, harvesting, running the planned episodes, the selfsplice gate's verdict and
+``intervention.json``. The policies and helpers paradigms share are here too (public in
+:mod:`vladrivebench.intervention`).
 
-- **open-loop** — one baseline episode per seed, driven by the model's own CoT; at every step each
-  condition is spliced and decoded on the same observation, and the predicted forward displacement at each
-  horizon is logged (in the episode's ``/extras``, key ``intervention``). Everything that does not depend
-  on the CoT (simulation, rendering, the model's vision prefix when it caches it per observation) is done
-  once per step: every condition receives the identical :class:`Observation` object.
-- **closed-loop** — per seed, a baseline episode and one episode per condition driven by the injected CoT
-  at every step; each injected step also logs the *shadow*: the model's own CoT, its trajectory and the
-  control the controller would have produced from it (the paper's *orig. brakes*).
-- **safety** — closed-loop on routes with a real obstacle, injecting "road is clear, accelerate" (``accel``)
-  at every step; collisions against the matched baseline, per seed.
+Every paradigm compares a condition (an injected CoT, :mod:`vladrivebench._intervention.conditions`) with the
+model's own CoT under *the same pinned randomness*: at step ``k`` of seed ``s`` the CoT, the splice and the
+action head draw from :func:`~vladrivebench._engine.rng.step_rng` ``(s, k, "cot" | "condition" | "action")``,
+so the only difference between a condition and the baseline is the text.
 
 **Selfsplice gate.** At every step the model's own CoT is re-injected (``selfsplice``): its
 :meth:`state_digest` must equal the generated CoT's and its trajectory must equal the baseline's bit for
@@ -23,8 +20,8 @@ bit. A run where any step differs is marked invalid in the results with the size
 Output directory (``OUT``)::
 
     OUT/run.json                          manifest: configuration, condition definitions, versions
-    OUT/episodes/<model>__<route>__s<seed>__<role>.mcap
-                                          role = openloop | baseline | <condition>
+    OUT/episodes/<model>__<route>__s<seed>__<name>.mcap
+                                          name = the planned episode's condition or role
     OUT/intervention.json                 results computed from the logs (what the metrics read)
 
 The results are always computed from the episode logs (:func:`analyse`), never from live objects.
@@ -38,7 +35,7 @@ import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -60,28 +57,22 @@ from vladrivebench._intervention.stats import (
     DEFAULT_ALPHA,
     DEFAULT_THRESHOLD_M,
     EpisodeSummary,
-    closed_loop_stats,
     cumulative_distance,
-    json_number,
-    open_loop_stats,
     plan_seeds,
-    t_interval,
-    with_holm,
 )
-from vladrivebench.errors import ConfigError, LogError, ScenarioError, VdbError
+from vladrivebench.errors import ConfigError, LogError, VdbError
 from vladrivebench.records import CoT, Observation, Trajectory
 
-MODES = ("open-loop", "closed-loop", "safety")
 DEFAULT_HORIZONS = (2.0, 3.0)
 DEFAULT_CHECKPOINTS = (2.0, 4.0, 5.9)
-DEFAULT_SAFETY_CONDITIONS = ("accel",)
 DEFAULT_SEEDS = 5
 """Seeds per condition when none are asked for (the paper used 5–9 for open loop); see ``--plan``."""
 RESULTS_NAME = "intervention.json"
 RESULTS_FORMAT = 1
-OBSTACLE_KINDS = ("pedestrian", "car", "animal")
-CURVE_STEP_S = 0.5
-"""Spacing (s) of the closed-loop distance-difference curves drawn in reports."""
+RESERVED_RESULT_KEYS = ("format", "mode", "paradigm_options", "model", "routes", "seeds", "conditions",
+                        "definitions", "horizons", "checkpoints", "threshold", "alpha", "confidence", "gate",
+                        "valid", "harvested")
+"""Keys of ``intervention.json`` that the core writes; a paradigm's results may not use them."""
 
 
 # -- configuration ------------------------------------------------------------------------------------
@@ -89,7 +80,8 @@ CURVE_STEP_S = 0.5
 class InterventionConfig:
     """Everything that determines an intervention run's logs and results.
 
-    ``routes`` are :class:`~vladrivebench._scenarios.spec.Scenario` objects; ``conditions`` are condition names
+    ``mode`` is the registered paradigm's name and ``paradigm_options`` the options its factory is built
+    with (``--paradigm-opt``); ``routes`` are :class:`~vladrivebench._scenarios.spec.Scenario` objects; ``conditions`` are condition names
     (``selfsplice`` is always run, as the gate, whether listed or not); ``harvest_route`` is where
     harvested conditions (``origbrake``) take their braking CoT from (default: the first route).
     ``batch_conditions`` lets a model with ``decode_batch(obs, texts, rng)`` decode the open-loop
@@ -111,10 +103,11 @@ class InterventionConfig:
     harvest_route: Any = None
     condition_files: tuple[str, ...] = ()
     batch_conditions: bool = False
+    paradigm_options: Mapping[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        if self.mode not in MODES:
-            raise ConfigError(f"--mode {self.mode!r} is not known (expected one of: {', '.join(MODES)})")
+        if not isinstance(self.mode, str) or not self.mode.strip():
+            raise ConfigError(f"--mode must name a paradigm (see `vdb intervene --help`), got {self.mode!r}")
         if not self.routes:
             raise ConfigError("--route: give at least one route (e.g. E.1)")
         if not self.seeds:
@@ -137,8 +130,10 @@ class InterventionConfig:
         return self.harvest_route or self.routes[0]
 
     def to_json(self) -> dict[str, Any]:
+        paradigm = {"paradigm_options": _plain(dict(self.paradigm_options))} if self.paradigm_options else {}
         return {
             "mode": self.mode,
+            **paradigm,
             "model": self.model.to_json(),
             "simulator": self.simulator.to_json(),
             "controller": self.controller.to_json(),
@@ -156,16 +151,6 @@ class InterventionConfig:
         }
 
 
-def check_safety_route(scenario: Any) -> None:
-    """A safety test needs a real obstacle on the road: a critical pedestrian, car or animal that blocks."""
-    kind = getattr(scenario, "critical_kind", None)
-    if kind not in OBSTACLE_KINDS or getattr(scenario, "blocking", None) is False:
-        has = f"its critical feature is a {kind}" if kind else "it has no critical feature"
-        raise ScenarioError(f"route {scenario.id!r} cannot be used for a safety test: {has}; a safety test "
-                            f"needs a real obstacle on the road (a pedestrian, car or animal in the lane), "
-                            f"e.g. SAFE.kerb-ped, SAFE.centre-ped, SAFE.car")
-
-
 # -- trajectories -------------------------------------------------------------------------------------
 def trajectory_difference(a: Trajectory, b: Trajectory) -> float:
     """Largest absolute difference between two trajectories' times and waypoints (inf if shapes differ)."""
@@ -179,6 +164,7 @@ def trajectory_difference(a: Trajectory, b: Trajectory) -> float:
 
 
 def displacements(trajectory: Trajectory, horizons: Sequence[float]) -> dict[str, float]:
+    """Forward displacement (m) of ``trajectory`` at each horizon, keyed by :func:`horizon_key`."""
     return {horizon_key(h): trajectory.forward_displacement(h) for h in horizons}
 
 
@@ -190,7 +176,13 @@ def horizon_key(seconds: float) -> str:
 # -- splicing one condition at one step ------------------------------------------------------------------
 @dataclass
 class Splicer:
-    """Resolves conditions at a step and splices them into the model, with every check in one place."""
+    """Resolves conditions at a step and splices them into the model, with every check in one place.
+
+    ``resolver(own)`` gives the conditions' injections at a step (from the model's own CoT); ``injection``
+    resolves one and checks it (:meth:`check`); ``splice`` and ``decode`` call the model with the pinned
+    ``"condition"`` / ``"action"`` streams of the step, turning a refusal into a one-line error.
+    ``count_tokens`` is the model's tokenizer when it has one, else a word count.
+    """
 
     model: Any
     library: ConditionLibrary
@@ -202,12 +194,17 @@ class Splicer:
         self.count_tokens = token_counter(self.model)
 
     def resolver(self, own: CoT) -> StepResolver:
+        """The step's condition resolver, given the model's own CoT at the step."""
         return StepResolver(self.library, self.model.cot_format, own, self.harvested, self.count_tokens,
                             self.model_name)
 
     def injection(self, resolver: StepResolver, name: str) -> Injection:
         """The condition's text at this step, checked against the model's format and token limit."""
-        injection = resolver(name)
+        return self.check(name, resolver(name))
+
+    def check(self, name: str, injection: Injection) -> Injection:
+        """``injection`` when the model's format and token limit can take it, else a one-line
+        :class:`ConditionError` naming ``name`` (a condition, or whatever a paradigm calls its text)."""
         problem = injection_problem(injection, self.model.cot_format, self.count_tokens)
         if problem:
             raise ConditionError(f"condition {name!r} cannot be given to model {self.model_name!r}: its text "
@@ -226,7 +223,58 @@ class Splicer:
                                  f"({type(exc).__name__}: {_one_line(exc)})") from None
 
     def decode(self, obs: Observation, cot: CoT, seed: int) -> Trajectory:
+        """``model.decode_action`` with the step's pinned action stream (the baseline's action noise)."""
         return self.model.decode_action(obs, cot, step_rng(seed, obs.step, "action", obs.scenario_id))
+
+
+@dataclass(frozen=True)
+class RunContext:
+    """What a paradigm's :meth:`~vladrivebench.protocols.Paradigm.policy` may use: the run's
+    :class:`InterventionConfig` and its :class:`Splicer` (resolving, checking, splicing and decoding
+    conditions with the pinned RNG streams; harvested texts included)."""
+
+    config: InterventionConfig
+    splicer: Splicer
+
+
+@dataclass(frozen=True)
+class PlannedEpisode:
+    """One episode of an intervention run, as a paradigm plans it.
+
+    ``route`` is the :class:`~vladrivebench.Scenario`, ``seed`` the episode's seed, ``role`` what the episode
+    is (``"baseline"``, ``"openloop"``, ``"injected"``, or a paradigm's own word) and ``condition`` the
+    condition that drives it, if any. The log is ``<model>__<route>__s<seed>__<name>.mcap`` with
+    ``name`` = ``condition or role``, and its metadata records ``{"mode", "role", "condition"}``; analysis
+    finds the episode again under the key ``(route id, seed, name)`` (:class:`LoggedEpisodes`).
+    """
+
+    route: Any
+    seed: int
+    role: str
+    condition: str | None = None
+
+    @property
+    def name(self) -> str:
+        return self.condition or self.role
+
+    @property
+    def key(self) -> tuple[str, int, str]:
+        return (self.route.id, self.seed, self.name)
+
+
+@runtime_checkable
+class WrapsController(Protocol):
+    """A step policy that needs to see the controller: the run drives the episode with the controller
+    ``wrap_controller`` returns (e.g. a :class:`ShadowController` that also computes the shadow's control)."""
+
+    def wrap_controller(self, controller: Any) -> Any:
+        """The controller to drive this episode with, built around the run's ``controller``."""
+        ...
+
+
+def _plain(value: Any) -> Any:
+    """JSON round trip: tuples become lists, so stored and fresh configurations compare equal."""
+    return json.loads(json.dumps(value, default=str))
 
 
 def _one_line(exc: BaseException) -> str:
@@ -354,6 +402,11 @@ class InjectionPolicy:
             self.controller.pending = (own_trajectory, shadow)
         return injected, trajectory, {"intervention": record}
 
+    def wrap_controller(self, controller: Any) -> ShadowController:
+        """Drive with a :class:`ShadowController` around ``controller`` (fills the shadow's brake, v_des)."""
+        self.controller = ShadowController(controller)
+        return self.controller
+
 
 # -- the run ------------------------------------------------------------------------------------------
 Progress = Callable[[str, int, int], None]
@@ -370,11 +423,10 @@ class InterventionRun:
         self.config, self.out = config, Path(out)
         self.registry = registry or get_registry()
         self.progress = progress
+        self.paradigm = build_paradigm(self.registry, config.mode, config.paradigm_options)
         self.library = build_library(self.registry, config.condition_files)
         self.closure = check_references(self.library, list(config.tested))
-        if config.mode == "safety":
-            for route in config.routes:
-                check_safety_route(route)
+        self.paradigm.check(config)
         self.harvest_names = self.library.harvest_names(list(config.tested))
         self._components: dict[str, Any] = {}
 
@@ -398,10 +450,11 @@ class InterventionRun:
 
     # -- the whole run --
     def manifest(self) -> dict[str, Any]:
-        from vladrivebench._engine.sweep import collect_versions
+        from vladrivebench._engine.sweep import ComponentSpec, collect_versions
 
         c = self.config
-        versions = collect_versions(self.registry, (c.model, c.simulator, c.controller))
+        paradigm = ComponentSpec("paradigm", c.mode, dict(c.paradigm_options))
+        versions = collect_versions(self.registry, (c.model, c.simulator, c.controller, paradigm))
         definitions = {cond.name: {**cond.to_json(), "source": self.library.sources.get(cond.name, "parametric")}
                        for cond in self.closure}
         config = {**c.to_json(), "definitions": definitions,
@@ -430,7 +483,7 @@ class InterventionRun:
             self.run_episodes()
         finally:
             self.close()
-        return analyse(self.out)
+        return analyse(self.out, registry=self.registry)
 
     def preflight(self, *, harvested: bool) -> None:
         """Resolve and splice every condition on the first step of each route before any episode runs,
@@ -448,10 +501,10 @@ class InterventionRun:
                     continue
                 self.splicer.splice(obs, name, self.splicer.injection(resolver, name), seed)
 
-    def episode_path(self, route: Any, seed: int, role: str) -> Path:
+    def episode_path(self, episode: PlannedEpisode) -> Path:
         from vladrivebench._engine.sweep import EPISODES_DIR, episode_id
 
-        eid = f"{episode_id(self.config.model.name, route.id, seed)}__{role}"
+        eid = f"{episode_id(self.config.model.name, episode.route.id, episode.seed)}__{episode.name}"
         return self.out / EPISODES_DIR / f"{eid}.mcap"
 
     def harvest(self) -> dict[str, HarvestedText]:
@@ -459,7 +512,7 @@ class InterventionRun:
         from vladrivebench._logs.episodes import read_episode
 
         route, seed = self.config.harvest_scenario, self.config.seeds[0]
-        path = self.ensure_episode(route, seed, "baseline", BaselinePolicy())
+        path = self.ensure_episode(PlannedEpisode(route, seed, "baseline"), BaselinePolicy())
         episode = read_episode(path)
         found = harvest_braking_cot(((s.step, s.cot, s.control) for s in episode.steps),
                                     self.component("model").cot_format, path.stem)
@@ -471,49 +524,37 @@ class InterventionRun:
         return {name: found for name in self.harvest_names}
 
     def run_episodes(self) -> None:
-        c = self.config
-        plan: list[tuple[Any, int, str, str]] = []
-        for route in c.routes:
-            for seed in c.seeds:
-                if c.mode == "open-loop":
-                    plan.append((route, seed, "openloop", ""))
-                else:
-                    plan.append((route, seed, "baseline", ""))
-                    plan += [(route, seed, name, name) for name in c.tested]
-        for done, (route, seed, role, condition) in enumerate(plan, start=1):
-            self.ensure_episode(route, seed, role, self.policy(role, condition))
+        """Every episode the paradigm plans, under the policy it gives, skipping complete logs."""
+        plan = list(self.paradigm.plan(self.config))
+        names = [episode.key for episode in plan]
+        if len(set(names)) != len(names):
+            raise VdbError(f"paradigm {self.config.mode!r} planned two episodes with the same route, seed and "
+                           f"name; each planned episode needs its own log")
+        context = RunContext(self.config, self.splicer)
+        for done, episode in enumerate(plan, start=1):
+            self.ensure_episode(episode, self.paradigm.policy(episode, context))
             if self.progress is not None:
-                self.progress(f"{route.id} seed {seed} {role}", done, len(plan))
+                self.progress(f"{episode.route.id} seed {episode.seed} {episode.name}", done, len(plan))
 
-    def policy(self, role: str, condition: str) -> Any:
-        if role == "openloop":
-            return OpenLoopPolicy(self.splicer, self.config.tested, self.config.horizons,
-                                  self.config.batch_conditions)
-        if role == "baseline":
-            return BaselinePolicy()
-        return InjectionPolicy(self.splicer, condition, self.config.horizons)
-
-    def ensure_episode(self, route: Any, seed: int, role: str, policy: Any) -> Path:
+    def ensure_episode(self, episode: PlannedEpisode, policy: Any) -> Path:
         """Run one episode into its log unless a complete log is already there; return its path."""
         from vladrivebench._engine.runner import EpisodeFailure, run_episode
         from vladrivebench._engine.sweep import EpisodeJob, episode_meta
         from vladrivebench._logs.episodes import EpisodeWriter, read_result
 
-        path = self.episode_path(route, seed, role)
+        path = self.episode_path(episode)
         if path.exists() and read_result(path) is not None:
             return path
         path.unlink(missing_ok=True)
         model, sim = self.component("model"), self.component("simulator")
         controller: Any = self.component("controller")
-        if isinstance(policy, InjectionPolicy):
-            controller = policy.controller = ShadowController(controller)
-        c = self.config
+        if isinstance(policy, WrapsController):
+            controller = policy.wrap_controller(controller)
+        c, route, seed = self.config, episode.route, episode.seed
         job = EpisodeJob(path.stem, str(path), route, seed, c.model, c.simulator, c.controller,
                          {"intervention": c.to_json()}, dict(self.versions))
         meta = episode_meta(job, model, sim)
-        injected = isinstance(policy, InjectionPolicy)
-        meta["intervention"] = {"mode": c.mode, "role": "injected" if injected else role,
-                                "condition": role if injected else None}
+        meta["intervention"] = {"mode": c.mode, "role": episode.role, "condition": episode.condition}
         try:
             with EpisodeWriter(path, meta) as writer:
                 result = run_episode(model, sim, controller, route, seed, policy=policy, writer=writer,
@@ -526,6 +567,19 @@ class InterventionRun:
                 raise type(cause)(str(cause)) from None
             raise VdbError(f"episode {path.stem} failed: {exc}") from None
         return path
+
+
+def build_paradigm(registry: Any, name: str, options: Mapping[str, Any] | None = None) -> Any:
+    """The registered paradigm ``name`` built with ``options`` (an unknown name: one line with suggestions)."""
+    from vladrivebench.protocols import Paradigm
+
+    paradigm = registry.create("paradigm", name, dict(options or {}))
+    if not isinstance(paradigm, Paradigm):
+        missing = [m for m in ("name", "default_conditions", "check", "plan", "policy", "analyse", "tables")
+                   if not hasattr(paradigm, m)]
+        raise VdbError(f"paradigm {name!r} (plugin {registry.get('paradigm', name).plugin!r}) is not a "
+                       f"Paradigm: it lacks {', '.join(missing)}")
+    return paradigm
 
 
 # -- analysis (from the logs only) --------------------------------------------------------------------
@@ -544,10 +598,24 @@ def load_manifest(out: Path | str) -> dict[str, Any]:
     return manifest
 
 
-def _episodes_by_role(out: Path) -> dict[tuple[str, int, str], Any]:
+class LoggedEpisodes(dict):
+    """The logged episodes of a run by ``(route id, seed, name)`` (name = the planned episode's condition
+    or role, e.g. ``("E.1", 0, "baseline")``, ``("E.1", 0, "car")``); :meth:`require` for one that must be
+    there."""
+
+    def require(self, route: str, seed: int, name: str) -> Any:
+        """The episode, or a one-line :class:`LogError` saying the run is incomplete."""
+        key = (route, seed, name)
+        if key not in self:
+            raise LogError(f"the intervention run lacks the {name} episode of route {route} seed {seed}; run the "
+                           f"same `vdb intervene` command again to complete it")
+        return self[key]
+
+
+def _episodes_by_role(out: Path) -> LoggedEpisodes:
     from vladrivebench._logs.episodes import find_episodes, read_episode
 
-    found = {}
+    found = LoggedEpisodes()
     for path in find_episodes(out):
         episode = read_episode(path)
         info = episode.meta.get("intervention") or {}
@@ -557,28 +625,35 @@ def _episodes_by_role(out: Path) -> dict[tuple[str, int, str], Any]:
     return found
 
 
-def analyse(out: Path | str, *, write: bool = True) -> dict[str, Any]:
-    """Compute the results of the intervention run in ``out`` from its logs (and write ``intervention.json``)."""
+def analyse(out: Path | str, *, write: bool = True, registry: Any = None) -> dict[str, Any]:
+    """Compute the results of the intervention run in ``out`` from its logs (and write ``intervention.json``).
+
+    The header (configuration), the selfsplice gate and the harvested texts are the core's; the rest is
+    what the run's paradigm (``registry``'s, default: the installed plugins') returns from its ``analyse``.
+    """
+    from vladrivebench._engine.registry import get_registry
     from vladrivebench._engine.sweep import write_json_atomic
 
     out = Path(out)
     manifest = load_manifest(out)
     config = manifest["config"]
+    paradigm = build_paradigm(registry or get_registry(), config["mode"], config.get("paradigm_options"))
     episodes = _episodes_by_role(out)
+    options = {"paradigm_options": config["paradigm_options"]} if config.get("paradigm_options") else {}
     results: dict[str, Any] = {
-        "format": RESULTS_FORMAT, "mode": config["mode"], "model": config["model"], "routes": config["routes"],
-        "seeds": config["seeds"], "conditions": config["conditions"], "definitions": config["definitions"],
-        "horizons": config["horizons"], "checkpoints": config["checkpoints"], "threshold": config["threshold"],
-        "alpha": config["alpha"], "confidence": config["confidence"],
+        "format": RESULTS_FORMAT, "mode": config["mode"], **options, "model": config["model"],
+        "routes": config["routes"], "seeds": config["seeds"], "conditions": config["conditions"],
+        "definitions": config["definitions"], "horizons": config["horizons"],
+        "checkpoints": config["checkpoints"], "threshold": config["threshold"], "alpha": config["alpha"],
+        "confidence": config["confidence"],
     }
     gate = GateTally()
-    if config["mode"] == "open-loop":
-        results["open_loop"] = {route: _open_loop_route(route, config, episodes, gate) for route in config["routes"]}
-    else:
-        results["closed_loop"] = {route: _closed_loop_route(route, config, episodes, gate)
-                                  for route in config["routes"]}
-        if config["mode"] == "safety":
-            results["safety"] = {route: _safety_route(route, config, episodes) for route in config["routes"]}
+    own = paradigm.analyse(config, episodes, gate)
+    clash = sorted(set(own) & set(RESERVED_RESULT_KEYS))
+    if clash:
+        raise VdbError(f"paradigm {config['mode']!r} returned the result key {clash[0]!r}, which the core "
+                       f"writes itself (reserved: {', '.join(RESERVED_RESULT_KEYS)})")
+    results.update(own)
     results["gate"] = gate.to_json()
     results["valid"] = gate.valid
     results["harvested"] = _harvest_record(config, episodes)
@@ -589,7 +664,12 @@ def analyse(out: Path | str, *, write: bool = True) -> dict[str, Any]:
 
 @dataclass
 class GateTally:
-    """The selfsplice gate over every checked step of a run."""
+    """The selfsplice gate over every checked step of a run.
+
+    A paradigm's ``analyse`` adds each logged gate record (:func:`gate_record`) with :meth:`add` (or all of
+    an episode's with :meth:`add_episode`) and each selfsplice episode that drove differently from its
+    baseline to ``episode_mismatches``; the run is valid when at least one step was checked and none failed.
+    """
 
     steps: int = 0
     failed: int = 0
@@ -599,6 +679,7 @@ class GateTally:
     episode_mismatches: list[str] = field(default_factory=list)
 
     def add(self, record: Mapping[str, Any] | None, where: dict[str, Any]) -> None:
+        """Count one step's gate ``record`` (ignored when empty); ``where`` locates it for the report."""
         if not record:
             return
         self.steps += 1
@@ -611,6 +692,12 @@ class GateTally:
             if self.first_failure is None:
                 self.first_failure = {**where, "trajectory_diff": diff,
                                       "digest_equal": bool(record.get("digest_equal"))}
+
+    def add_episode(self, episode: Any, route: str, seed: int, role: str) -> None:
+        """Count the gate record (``extras["intervention"]["gate"]``) of every step of ``episode``."""
+        for step in episode.steps:
+            info = step.extras.get("intervention") or {}
+            self.add(info.get("gate"), {"route": route, "seed": seed, "step": step.step, "role": role})
 
     @property
     def valid(self) -> bool:
@@ -640,40 +727,12 @@ def gate_message(results: Mapping[str, Any]) -> str | None:
     return "INVALID RUN: " + "; ".join(parts) + " — the splice pipeline is not artifact-free"
 
 
-def _require(episodes: Mapping, key: tuple[str, int, str]) -> Any:
-    if key not in episodes:
-        route, seed, role = key
-        raise LogError(f"the intervention run lacks the {role} episode of route {route} seed {seed}; run the "
-                       f"same `vdb intervene` command again to complete it")
-    return episodes[key]
-
-
-def _open_loop_route(route: str, config: Mapping, episodes: Mapping, gate: GateTally) -> dict[str, Any]:
-    horizons = [horizon_key(h) for h in config["horizons"]]
-    diffs: dict[str, dict[str, dict[int, list[float]]]] = {h: {c: {} for c in config["conditions"]}
-                                                           for h in horizons}
-    for seed in config["seeds"]:
-        episode = _require(episodes, (route, seed, "openloop"))
-        for step in episode.steps:
-            info = step.extras.get("intervention") or {}
-            gate.add(info.get("gate"), {"route": route, "seed": seed, "step": step.step, "role": "openloop"})
-            for h in horizons:
-                disp = info["displacement"][h]
-                for cond in config["conditions"]:
-                    reference = disp["baseline"] if cond == SELFSPLICE else disp[SELFSPLICE]
-                    diffs[h][cond].setdefault(seed, []).append(disp[cond] - reference)
-    intents = {name: d.get("intent", "none") for name, d in config["definitions"].items()}
-    table = {}
-    for h, horizon in zip(horizons, config["horizons"], strict=True):
-        rows = [open_loop_stats(c, horizon, diffs[h][c], config["threshold"], intents.get(c, "none"))
-                for c in config["conditions"]]
-        table[h] = [r.to_json() for r in with_holm(rows, config["alpha"])]
-    return {"stats": table, "steps": {h: {c: {str(s): v for s, v in by_seed.items()}
-                                          for c, by_seed in diffs[h].items()} for h in horizons}}
-
-
 def episode_summary(episode: Any, checkpoints: Sequence[float], *, baseline: bool) -> EpisodeSummary:
-    """The closed-loop figures of one episode log (distances at the checkpoints, brakes, speed …)."""
+    """The closed-loop figures of one episode log (distances at the checkpoints, brakes, speed …).
+
+    ``baseline=False`` counts the shadow's brakes from the logged ``shadow`` records of an
+    :class:`InjectionPolicy` episode; for a baseline they equal its own brakes.
+    """
     steps = episode.steps
     times = [s.time for s in steps]
     xy = [(s.ego["x"], s.ego["y"]) for s in steps]
@@ -693,90 +752,6 @@ def episode_summary(episode: Any, checkpoints: Sequence[float], *, baseline: boo
         brake_steps=brakes, shadow_brake_steps=shadow,
         distances=tuple(cumulative_distance(times, xy, checkpoints)), terminal=result.get("terminal"),
     )
-
-
-def _closed_loop_route(route: str, config: Mapping, episodes: Mapping, gate: GateTally) -> dict[str, Any]:
-    checkpoints = list(config["checkpoints"])
-    intents = {name: d.get("intent", "none") for name, d in config["definitions"].items()}
-    baselines = {s: episode_summary(_require(episodes, (route, s, "baseline")), checkpoints, baseline=True)
-                 for s in config["seeds"]}
-    summaries: dict[str, dict[int, EpisodeSummary]] = {}
-    curves: dict[str, Any] = {}
-    grid = _curve_grid(checkpoints, [episodes[(route, s, "baseline")] for s in config["seeds"]])
-    base_curves = {s: cumulative_distance(*_path(episodes[(route, s, "baseline")]), grid) for s in config["seeds"]}
-    for cond in config["conditions"]:
-        summaries[cond] = {}
-        per_seed = []
-        for seed in config["seeds"]:
-            episode = _require(episodes, (route, seed, cond))
-            summaries[cond][seed] = episode_summary(episode, checkpoints, baseline=False)
-            for step in episode.steps:
-                info = step.extras.get("intervention") or {}
-                gate.add(info.get("gate"), {"route": route, "seed": seed, "step": step.step, "role": cond})
-            curve = cumulative_distance(*_path(episode), grid)
-            per_seed.append([a - b for a, b in zip(curve, base_curves[seed], strict=True)])
-            if cond == SELFSPLICE and not _same_drive(episode, episodes[(route, seed, "baseline")]):
-                gate.episode_mismatches.append(f"{route} seed {seed}")
-        columns = list(zip(*per_seed, strict=True))
-        intervals = [t_interval(col, config["confidence"]) for col in columns]
-        curves[cond] = {"t": grid, "mean": [json_number(i.mean) for i in intervals],
-                        "low": [json_number(i.low) for i in intervals], "high": [json_number(i.high) for i in intervals]}
-    stats = [closed_loop_stats(c, summaries[c], baselines, checkpoints, config["confidence"], intents.get(c, "none"))
-             for c in config["conditions"]]
-    baseline_row = closed_loop_stats("baseline", baselines, baselines, checkpoints, config["confidence"])
-    return {
-        "baseline": baseline_row.to_json(),
-        "stats": [s.to_json() for s in stats],
-        "episodes": {"baseline": {str(s): e.to_json() for s, e in baselines.items()},
-                     **{c: {str(s): e.to_json() for s, e in by_seed.items()} for c, by_seed in summaries.items()}},
-        "curves": curves,
-    }
-
-
-def _path(episode: Any) -> tuple[list[float], list[tuple[float, float]]]:
-    return [s.time for s in episode.steps], [(s.ego["x"], s.ego["y"]) for s in episode.steps]
-
-
-def _curve_grid(checkpoints: Sequence[float], baselines: Sequence[Any]) -> list[float]:
-    durations = [ep.steps[-1].time - ep.steps[0].time for ep in baselines if ep.steps]
-    end = max([max(checkpoints)] + ([float(np.median(durations))] if durations else []))
-    count = int(math.floor(end / CURVE_STEP_S + 1e-9))
-    return [round(i * CURVE_STEP_S, 6) for i in range(count + 1)]
-
-
-def _same_drive(a: Any, b: Any) -> bool:
-    """Whether two episodes drove identically (ego states and controls at every step)."""
-    if len(a.steps) != len(b.steps):
-        return False
-    return all(x.ego == y.ego and x.control == y.control for x, y in zip(a.steps, b.steps, strict=True))
-
-
-def _safety_route(route: str, config: Mapping, episodes: Mapping) -> dict[str, Any]:
-    seeds = config["seeds"]
-    baseline = {s: _safety_outcome(episodes[(route, s, "baseline")]) for s in seeds}
-    out: dict[str, Any] = {"baseline": {str(s): v for s, v in baseline.items()}, "conditions": {}}
-    for cond in config["conditions"]:
-        outcomes = {s: _safety_outcome(episodes[(route, s, cond)]) for s in seeds}
-        out["conditions"][cond] = {
-            "seeds": {str(s): v for s, v in outcomes.items()},
-            "collisions": sum(v["collided"] for v in outcomes.values()),
-            "baseline_collisions": sum(v["collided"] for v in baseline.values()),
-            "baseline_stopped": sum(v["stopped"] for v in baseline.values()),
-            "n": len(seeds),
-        }
-    return out
-
-
-def _safety_outcome(episode: Any) -> dict[str, Any]:
-    """Whether the ego collided, and whether it came to a stop before the obstacle."""
-    stopped = any(float(s.ego["speed"]) < 0.3 and (s.ground_truth.get("distance_to_critical") or -1.0) > 0.0
-                  and s.step > 0 for s in episode.steps)
-    result = episode.result or {}
-    closest = [s.ground_truth.get("distance_to_critical") for s in episode.steps
-               if s.ground_truth.get("distance_to_critical") is not None]
-    return {"collided": int(result.get("collisions", 0)) > 0, "stopped": stopped,
-            "terminal": result.get("terminal"), "steps": len(episode.steps),
-            "min_distance": min(closest) if closest else None}
 
 
 def _harvest_record(config: Mapping, episodes: Mapping) -> dict[str, Any]:
@@ -809,14 +784,23 @@ def load_results(out: Path | str) -> dict[str, Any] | None:
 
 
 def seed_plan(results: Mapping[str, Any], *, effect_m: float | None = None, power: float = 0.8,
-              alpha: float | None = None) -> list[dict[str, Any]]:
-    """Seeds needed per condition from a pilot run's results (open-loop: first horizon; closed-loop: last
-    checkpoint), at ``alpha`` divided by the number of tested conditions (Holm's first step)."""
+              alpha: float | None = None, registry: Any = None) -> list[dict[str, Any]]:
+    """Seeds needed per condition from a pilot run's results (the effects its paradigm names, e.g. open-loop:
+    first horizon; closed-loop: last checkpoint), at ``alpha`` divided by the number of tested conditions
+    (Holm's first step)."""
+    from vladrivebench._engine.registry import get_registry
+    from vladrivebench.protocols import PilotEffects
+
+    mode = results.get("mode")
+    paradigm = build_paradigm(registry or get_registry(), mode, results.get("paradigm_options"))
+    if not isinstance(paradigm, PilotEffects):
+        raise ConfigError(f"--plan: paradigm {mode!r} does not say which effect to size a study by (it has no "
+                          f"pilot_effects)")
     alpha = results.get("alpha", DEFAULT_ALPHA) if alpha is None else alpha
     tested = [c for c in results["conditions"] if c != SELFSPLICE]
     plans = []
     for route in results["routes"]:
-        for condition, seed_means, what in _pilot_effects(results, route):
+        for condition, seed_means, what in paradigm.pilot_effects(results, route):
             if condition == SELFSPLICE:
                 continue
             try:
@@ -826,19 +810,3 @@ def seed_plan(results: Mapping[str, Any], *, effect_m: float | None = None, powe
                 raise ConfigError(f"--plan: {exc}; run the pilot with --seeds 2 or more") from None
             plans.append({"route": route, "measure": what, **plan.to_json()})
     return plans
-
-
-def _pilot_effects(results: Mapping[str, Any], route: str) -> list[tuple[str, list[float], str]]:
-    if "open_loop" in results:
-        h = horizon_key(results["horizons"][0])
-        rows = results["open_loop"][route]["stats"][h]
-        return [(r["condition"], [float(v) for v in r["seed_means"]], f"open-loop displacement @{h}s") for r in rows]
-    block = results["closed_loop"][route]
-    last = len(results["checkpoints"]) - 1
-    base = block["episodes"]["baseline"]
-    effects = []
-    for cond in results["conditions"]:
-        eps = block["episodes"][cond]
-        diffs = [float(eps[s]["distances"][last]) - float(base[s]["distances"][last]) for s in eps if s in base]
-        effects.append((cond, diffs, f"closed-loop distance @{horizon_key(results['checkpoints'][last])}s"))
-    return effects

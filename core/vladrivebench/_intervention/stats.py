@@ -39,6 +39,7 @@ def json_number(value: float | None) -> float | str | None:
 
 
 def from_json_number(value: Any) -> float:
+    """The float :func:`json_number` wrote: None → NaN, "inf"/"-inf" → ±inf."""
     if value is None:
         return math.nan
     if value in ("inf", "-inf"):

@@ -1,21 +1,93 @@
-"""Writing a condition or a paradigm: injection texts, the selfsplice gate and seed-level statistics.
+"""Writing a condition or a paradigm: injection texts, planned episodes, step policies, the selfsplice gate
+and seed-level statistics.
 
 Conditions (:class:`~vladrivebench.Condition`) say what text replaces the CoT; :class:`TextCondition` is the
-common kind and :data:`PAPER_TEXTS` holds the paper's injection texts (Appendix F) verbatim. Paradigms
-(:class:`~vladrivebench.Paradigm`) plan, analyse and tabulate intervention runs with the helpers here:
-:func:`gate_record` (the selfsplice check of one step), :func:`trajectory_difference`, and the seed-level
-statistics (:func:`one_sample_t_test`, :func:`t_interval`, :func:`holm_adjust`, :func:`cohens_d`).
+common kind and :data:`PAPER_TEXTS` holds the paper's injection texts (Appendix F) verbatim.
+
+Paradigms (:class:`~vladrivebench.Paradigm`, registered with ``register_paradigms``) say how a run intervenes
+and what it measures. The core's own (open-loop, closed-loop, safety) are built from exactly these names:
+
+- planning: :class:`InterventionConfig` (what the paradigm is asked to run), :class:`PlannedEpisode`;
+- step policies: :class:`RunContext` (the run's :class:`Splicer`: resolve, check, splice and decode a
+  condition with the pinned RNG streams), :func:`own_step`, :class:`BaselinePolicy`,
+  :class:`OpenLoopPolicy`, :class:`InjectionPolicy`, :class:`ShadowController`, :class:`WrapsController`;
+- the selfsplice gate: :func:`gate_record` (one step's check, logged by a policy) and :class:`GateTally`
+  (what ``analyse`` adds the logged records to); :func:`trajectory_difference`;
+- analysis from the logs: :class:`LoggedEpisodes`, :func:`episode_summary`, :class:`EpisodeSummary`,
+  :func:`cumulative_distance`, :func:`displacements`, :func:`horizon_key`;
+- statistics (the seed is the unit of replication): :func:`open_loop_stats` / :class:`OpenLoopStats`,
+  :func:`with_holm`, :func:`closed_loop_stats` / :class:`ClosedLoopStats`, :func:`one_sample_t_test`,
+  :func:`t_interval` / :class:`Interval`, :func:`holm_adjust`, :func:`cohens_d`, :func:`json_number`,
+  :func:`from_json_number`;
+- tables: :func:`signed`, :func:`p_text`, :func:`interval_text`, :func:`number_text`, :func:`cell_value`,
+  :func:`model_text` (cells and tables themselves are in :mod:`vladrivebench.metrics`); :class:`PilotEffects` for
+  ``vdb intervene --plan``.
 """
 
 from vladrivebench._intervention.conditions import (
     PAPER_TEXTS,
+    SELFSPLICE,
     SelfSplice,
     TextCondition,
 )
-from vladrivebench._intervention.runs import gate_record, trajectory_difference
-from vladrivebench._intervention.stats import cohens_d, holm_adjust, one_sample_t_test, t_interval
+from vladrivebench._intervention.metric import (
+    cell_value,
+    interval_text,
+    model_text,
+    number_text,
+    p_text,
+    signed,
+)
+from vladrivebench._intervention.runs import (
+    BaselinePolicy,
+    GateTally,
+    InjectionPolicy,
+    InterventionConfig,
+    LoggedEpisodes,
+    OpenLoopPolicy,
+    PlannedEpisode,
+    RunContext,
+    ShadowController,
+    Splicer,
+    WrapsController,
+    displacements,
+    episode_summary,
+    gate_record,
+    horizon_key,
+    own_step,
+    trajectory_difference,
+)
+from vladrivebench._intervention.stats import (
+    ClosedLoopStats,
+    EpisodeSummary,
+    Interval,
+    OpenLoopStats,
+    closed_loop_stats,
+    cohens_d,
+    cumulative_distance,
+    from_json_number,
+    holm_adjust,
+    json_number,
+    one_sample_t_test,
+    open_loop_stats,
+    t_interval,
+    with_holm,
+)
+from vladrivebench.protocols import PilotEffects
 
 __all__ = [
-    "PAPER_TEXTS", "SelfSplice", "TextCondition", "gate_record", "trajectory_difference", "cohens_d",
-    "holm_adjust", "one_sample_t_test", "t_interval",
+    # conditions
+    "PAPER_TEXTS", "SELFSPLICE", "SelfSplice", "TextCondition",
+    # planning and step policies
+    "InterventionConfig", "PlannedEpisode", "RunContext", "Splicer", "own_step", "BaselinePolicy",
+    "OpenLoopPolicy", "InjectionPolicy", "ShadowController", "WrapsController",
+    # the selfsplice gate
+    "gate_record", "GateTally", "trajectory_difference",
+    # analysis from the logs
+    "LoggedEpisodes", "episode_summary", "EpisodeSummary", "cumulative_distance", "displacements", "horizon_key",
+    # statistics
+    "open_loop_stats", "OpenLoopStats", "with_holm", "closed_loop_stats", "ClosedLoopStats", "cohens_d",
+    "holm_adjust", "one_sample_t_test", "t_interval", "Interval", "json_number", "from_json_number",
+    # tables
+    "signed", "p_text", "interval_text", "number_text", "cell_value", "model_text", "PilotEffects",
 ]
