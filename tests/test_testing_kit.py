@@ -181,7 +181,7 @@ def says_nothing_useful(coupling: float = 1.0):
     (accepts_anything, "were accepted"),
     (raises_value_error, "raised ValueError: bad coupling"),
     (two_lines, "must be one non-empty line"),
-    (says_nothing_useful, "does not name the option"),
+    (says_nothing_useful, "names neither the option nor its value"),
 ])
 def test_check_bad_options_fails_when_a_bad_option_is_not_a_one_line_error(factory, needle):
     with pytest.raises(AssertionError, match="'word'") as info:

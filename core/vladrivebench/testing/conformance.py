@@ -170,7 +170,7 @@ def _check_token_limit(model: Any, own: CoT, at: str) -> None:
 def check_bad_options(create: Callable[[Mapping[str, Any]], Any], bad: Iterable[Mapping[str, Any]], *,
                       name: str = "component", unknown_option: bool = True) -> None:
     """Check that every option set in ``bad`` is refused with a one-line :class:`~vladrivebench.VdbError`
-    that names the (first) offending option.
+    that names an offending option (its key, or its value such as a path).
 
     ``create(options)`` builds the component; pass ``lambda o: registry.create("model", "mine", o)`` to go
     through the registry as the CLI does. With ``unknown_option`` an option nobody takes is tried too.
@@ -188,8 +188,8 @@ def check_bad_options(create: Callable[[Mapping[str, Any]], Any], bad: Iterable[
             message = str(exc)
             _expect(message.strip() != "" and "\n" not in message.strip(), what,
                     f"options {options!r}: the error must be one non-empty line, got {message!r}")
-            _expect(any(key in message for key in options), what,
-                    f"options {options!r}: the error {message!r} does not name the option")
+            _expect(any(key in message or str(value) in message for key, value in options.items()), what,
+                    f"options {options!r}: the error {message!r} names neither the option nor its value")
         except Exception as exc:  # noqa: BLE001 - the point is to report what else came out
             _fail(what, f"options {options!r} raised {type(exc).__name__}: {exc} (expected a one-line VdbError, "
                         "e.g. vladrivebench.ConfigError)")
