@@ -11,6 +11,8 @@ import sys
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from vladrivebench import (
     Actor,
     ConfigError,
@@ -506,3 +508,60 @@ def test_vdb_registry_is_isolated_and_restored(vdb_registry):
     inner = vdb_registry(("other", sys.modules[__name__]))
     assert get_registry() is inner and inner.names("controller") == []
     assert before is not registry
+
+
+class Exploding:
+    """A simulator plugin that is installed but cannot render."""
+
+    @staticmethod
+    @hookimpl
+    def register_simulators(register):
+        def make(width: int = 8, height: int = 8):
+            raise RuntimeError("no GPU")
+        register("exploding", make)
+
+
+def test_observations_fall_back_with_a_warning_when_the_simulator_breaks(monkeypatch):
+    from vladrivebench._engine import registry as engine_registry
+
+    real = engine_registry.Registry
+
+    def with_exploding(*args, **kwargs):
+        made = real(*args, **kwargs)
+        made.add_plugin("exploding", Exploding)
+        return made
+
+    monkeypatch.setattr(engine_registry, "Registry", with_exploding)
+    with pytest.warns(UserWarning, match="simulator 'exploding' could not render .*RuntimeError: no GPU"):
+        frames = observations(1, simulator="exploding")
+    assert frames[0].scenario_id == "synthetic"
+
+
+# -- properties -------------------------------------------------------------------------------------------
+
+
+@settings(max_examples=25, deadline=None)
+@given(step=st.integers(0, 80), height=st.integers(8, 300), width=st.integers(8, 300), seed=st.integers(0, 2**32 - 1))
+def test_synthetic_observations_are_well_formed_and_reproducible(step, height, width, seed):
+    obs = synthetic_observation(step, height=height, width=width, seed=seed)
+    assert obs.image.shape == (height, width, 3) and obs.image.dtype == np.uint8
+    assert np.array_equal(obs.image, synthetic_observation(step, height=height, width=width, seed=seed).image)
+    truth = obs.ground_truth
+    assert truth.step == obs.step == step and truth.critical().kind == truth.critical_kind == "pedestrian"
+
+
+words = st.sampled_from(["stop", "Brake", "maintain", "accelerate", "pedestrian", "light", "red", "green", "car",
+                         "keep a safe distance", "the", "ahead", "", "stop sign", "vehicle", "yield"])
+contexts = st.sampled_from([None, "pedestrian", "car", "traffic_light", "stop_sign", "animal"])
+
+
+@settings(max_examples=60, deadline=None)
+@given(texts=st.lists(st.lists(words, max_size=8).map(" ".join), min_size=1, max_size=6),
+       kinds=st.lists(contexts, min_size=6, max_size=6))
+def test_the_keyword_labeler_conforms_on_any_text(texts, kinds):
+    items = [LabelInput(text=text, context={"critical_kind": kind}) for text, kind in zip(texts, kinds, strict=False)]
+    check_labeler(KeywordLabeler(), items, name="keyword")
+    for item, labels in zip(items, KeywordLabeler().label_batch(items), strict=True):
+        lowered = item.text.lower()
+        stops = any(w in lowered for w in ("stop", "brake", "slow", "decelerat", "yield"))
+        assert (labels.stated_action == "decelerating") == (stops and "keep a safe distance" not in lowered)
