@@ -100,6 +100,11 @@ class BackwardsTrajectory(WordModel):
         return Trajectory(trajectory.times[::-1], trajectory.xy)
 
 
+class BellRinger(WordModel):
+    def generate_cot(self, obs, rng):
+        return CoT("Go ahead.\x07", state={"text": "Go ahead.\x07"})
+
+
 class NoDigest:
     cot_format = CoTFormat()
     trajectory_spec = TrajectorySpec()
@@ -131,6 +136,8 @@ def test_check_model_passes_on_a_conforming_model(three_observations):
     (Chatterbox(), "more than cot_format.max_tokens = 3"),
     (BackwardsTrajectory(), "malformed trajectory: times must be positive and strictly increasing"),
     (NoDigest(), "does not implement the VLAModel protocol"),
+    (BellRinger(), "cannot be injected back (the intervention protocol would refuse it): the CoT contains the "
+                   "control or unassigned character U+0007"),
     (LyingTokenCounter(), "count_tokens('Stop for the pedestrian.') must return a non-negative int"),
 ])
 def test_check_model_fails_on_a_broken_model(three_observations, model, needle):

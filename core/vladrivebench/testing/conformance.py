@@ -59,7 +59,8 @@ def check_model(model: Any, observations: Sequence[Observation], *, name: str = 
 
     Checks the protocol and its attributes; that the same RNG state gives the same CoT text and the same
     trajectory bit for bit; that splicing the model's own text (selfsplice) gives the same
-    :meth:`state_digest` and, with the same RNG state, the same trajectory bit for bit; that trajectories are
+    :meth:`state_digest` and, with the same RNG state, the same trajectory bit for bit (and that the own CoT is
+    one the intervention protocol accepts as an injection: no control characters); that trajectories are
     well formed; that slotted CoTs have exactly the format's slots; and the token limit: the model's own
     CoT fits ``cot_format.max_tokens`` (counted with its :class:`~vladrivebench.TokenCounter` if it has one).
     """
@@ -71,8 +72,8 @@ def check_model(model: Any, observations: Sequence[Observation], *, name: str = 
         at = f"{what} at observation {index} (step {obs.step})"
         model.reset(seed)
         own = _own_cot(model, obs, seed, at)
-        _check_selfsplice(model, obs, own, seed, at)
         _check_token_limit(model, own, at)
+        _check_selfsplice(model, obs, own, seed, at)
 
 
 def _check_model_attributes(model: Any, what: str) -> None:
@@ -131,7 +132,12 @@ def _same_trajectory(a: Trajectory, b: Trajectory) -> bool:
 
 
 def _check_selfsplice(model: Any, obs: Observation, own: CoT, seed: int, at: str) -> None:
+    from vladrivebench._intervention.conditions import injection_problem, token_counter
+
     injection: str | dict[str, str] = dict(own.slots) if model.cot_format.is_slotted else own.text
+    problem = injection_problem(injection, model.cot_format, token_counter(model))
+    _expect(problem is None, at, f"its own CoT cannot be injected back (the intervention protocol would refuse "
+                                 f"it): the CoT {problem}")
     spliced = model.splice_cot(obs, injection, _rng(seed))
     _expect(isinstance(spliced, CoT), at, f"splice_cot must return a CoT, got {type(spliced).__name__}")
     own_digest, spliced_digest = model.state_digest(own), model.state_digest(spliced)
