@@ -1,6 +1,6 @@
 """Small fake components for the runner, log, executor and CLI tests (a plugin module).
 
-Importable by name (the tests put this folder on ``sys.path``) so that spawned worker processes can
+Importable by name (tests/conftest.py puts this folder on ``sys.path``) so that spawned worker processes can
 rebuild the same registry. The fakes are real enough to drive closed-loop episodes: a 1-D road with an
 optional stopped car, a model whose action follows its own CoT, a proportional speed controller.
 """

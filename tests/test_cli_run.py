@@ -3,26 +3,16 @@ failures, refusal of a different configuration, resume (SIGKILL tests: test_cli_
 
 from __future__ import annotations
 
-import importlib
 import json
 import re
-import sys
 from pathlib import Path
 
 import pytest
+import runner_fakes as fakes
 from vladrivebench._cli import main as cli
 from vladrivebench._engine import registry as plugins
 from vladrivebench._scenarios import spec as scenarios
 
-
-def load_fakes():
-    folder = str(Path(__file__).resolve().parent)
-    if folder not in sys.path:
-        sys.path.insert(0, folder)
-    return importlib.import_module("runner_fakes")
-
-
-fakes = load_fakes()
 BASE = ["run", "--model", "echo", "--sim", "line", "--controller", "speed"]
 
 

@@ -3,7 +3,6 @@ episode logs byte-identical to an uninterrupted run (sequential and process pool
 
 from __future__ import annotations
 
-import importlib
 import json
 import os
 import signal
@@ -14,16 +13,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import runner_fakes as fakes
 
-
-def load_fakes():
-    folder = str(Path(__file__).resolve().parent)
-    if folder not in sys.path:
-        sys.path.insert(0, folder)
-    return importlib.import_module("runner_fakes")
-
-
-fakes = load_fakes()
 BASE = ["run", "--model", "echo", "--sim", "line", "--controller", "speed"]
 
 

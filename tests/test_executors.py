@@ -2,26 +2,14 @@
 
 from __future__ import annotations
 
-import importlib
 import os
-import sys
-from pathlib import Path
 
 import pytest
+import runner_fakes as fakes
 from vladrivebench._engine.executors import JobFailure, ProcessExecutor, SequentialExecutor
 from vladrivebench._engine.registry import Registry
 from vladrivebench._engine.sweep import ComponentSpec, RegistrySpec, RunConfig, make_jobs
 from vladrivebench.errors import ConfigError
-
-
-def load_fakes():
-    folder = str(Path(__file__).resolve().parent)
-    if folder not in sys.path:
-        sys.path.insert(0, folder)
-    return importlib.import_module("runner_fakes")
-
-
-fakes = load_fakes()
 
 
 def results_by_job(results):

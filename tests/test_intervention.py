@@ -4,12 +4,10 @@ resume, determinism and one-line errors. (Calibration on the scripted model: tes
 from __future__ import annotations
 
 import dataclasses
-import importlib
 import json
 import math
-import sys
-from pathlib import Path
 
+import intervention_fakes as fakes
 import numpy as np
 import pytest
 from vladrivebench import _builtins as core_plugin
@@ -32,14 +30,6 @@ from vladrivebench._scenarios.spec import resolve_scenarios
 from vladrivebench.errors import ConfigError, ScenarioError, UnknownNameError
 from vladrivebench.records import EgoState, Trajectory
 
-
-def load_fakes():
-    folder = str(Path(__file__).resolve().parent)
-    if folder not in sys.path:
-        sys.path.insert(0, folder)
-    return importlib.import_module("intervention_fakes")
-
-fakes = load_fakes()
 KeywordModel, SpeedController, Fakes = fakes.KeywordModel, fakes.SpeedController, fakes.Fakes
 
 

@@ -2,26 +2,15 @@
 
 from __future__ import annotations
 
-import importlib
 import json
-import sys
-from pathlib import Path
 
+import intervention_fakes as fakes
 import pytest
 from vladrivebench._analysis.tables import AnalysisDataset, Plot, Table
 from vladrivebench._cli import main as cli
 from vladrivebench._engine import registry as plugins
 from vladrivebench._intervention.metric import InterventionMetric, interval_text, p_text, table_text
 
-
-def load_fakes():
-    folder = str(Path(__file__).resolve().parent)
-    if folder not in sys.path:
-        sys.path.insert(0, folder)
-    return importlib.import_module("intervention_fakes")
-
-
-fakes = load_fakes()
 BASE = ["intervene", "--model", "keyword", "--sim", "line", "--controller", "speed", "--quiet"]
 
 

@@ -2,10 +2,7 @@
 
 from __future__ import annotations
 
-import importlib
 import math
-import sys
-from pathlib import Path
 
 import pytest
 from hypothesis import given, settings
@@ -25,14 +22,6 @@ from vladrivebench._builtins.metrics import (
 )
 from vladrivebench._logs import episodes as logs
 from vladrivebench.errors import ConfigError, LogError
-
-
-@pytest.fixture(scope="module")
-def fx():
-    folder = str(Path(__file__).parent)
-    if folder not in sys.path:
-        sys.path.insert(0, folder)
-    return importlib.import_module("analysis_episodes")
 
 
 def label_all(directory, fx, fraction=1.0):

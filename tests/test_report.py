@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import base64
-import importlib
 import json
 import re
 import sys
@@ -18,13 +17,6 @@ from vladrivebench._cli.main import main
 
 GOLD = Path(__file__).parent / "data" / "gold_labels.jsonl"
 
-
-@pytest.fixture(scope="module")
-def fx():
-    folder = str(Path(__file__).parent)
-    if folder not in sys.path:
-        sys.path.insert(0, folder)
-    return importlib.import_module("analysis_episodes")
 
 
 @pytest.fixture

@@ -2,13 +2,11 @@
 
 from __future__ import annotations
 
-import importlib
 import json
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
+import runner_fakes as fakes
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from vladrivebench._engine.rng import step_rng
@@ -24,16 +22,6 @@ from vladrivebench._logs.episodes import EpisodeWriter, read_episode
 from vladrivebench.errors import ModelOutputError
 from vladrivebench.records import CoT, Trajectory
 
-
-def load_fakes():
-    """The fake components, imported by name so that spawned worker processes can import them too."""
-    folder = str(Path(__file__).resolve().parent)
-    if folder not in sys.path:
-        sys.path.insert(0, folder)
-    return importlib.import_module("runner_fakes")
-
-
-fakes = load_fakes()
 EchoModel, ExplodingSimulator, FakeScenario = fakes.EchoModel, fakes.ExplodingSimulator, fakes.FakeScenario
 LineSimulator, SpeedController = fakes.LineSimulator, fakes.SpeedController
 

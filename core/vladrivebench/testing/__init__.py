@@ -1,28 +1,77 @@
-"""Testing plugins: isolated registries, the CLI in-process, single episodes and small sweeps.
+"""Testing plugins: conformance checks, sample inputs, isolated registries, the CLI in-process, episodes.
 
-Everything a plugin's tests need without importing the core's internals. (Conformance checks for each kind
-of plugin and the pytest fixtures of the ``vladrivebench`` pytest plugin live here too.)
+Everything a plugin's tests need without importing the core's internals:
+
+- **Conformance checks** (:mod:`vladrivebench.testing.conformance`), one per kind of plugin, each raising
+  :class:`AssertionError` naming the plugin and what broke: :func:`check_model` (protocol, selfsplice
+  digest and bit-identical trajectory under a pinned RNG, token limits), :func:`check_bad_options` (one-line
+  :class:`~vladrivebench.VdbError` naming the option), :func:`check_simulator` (determinism and ground-truth
+  invariants), :func:`check_labeler` (label values, ``label_batch`` order, version) and
+  :func:`check_metric` (tables and plots whose every cell has a count).
+- **Sample inputs** (:mod:`vladrivebench.testing.samples`): :func:`observations` (camera images of 224 pixels
+  and more on the short side), :func:`label_items`, :func:`write_episode_dir` (a tiny labelled episode
+  directory) and the simple :class:`KeywordLabeler`.
+- **pytest fixtures** from the ``vladrivebench`` pytest plugin (registered through the ``pytest11`` entry
+  point, so installing the core is enough): ``vdb_registry``, ``vdb_observation``, ``vdb_observations``,
+  ``vdb_label_items``, ``vdb_episode_dir`` and ``vdb_dataset``.
 
 Example (pytest)::
 
-    from vladrivebench.testing import isolated_registry
+    from vladrivebench.testing import check_model, isolated_registry
 
     def test_my_model_registers():
         with isolated_registry(("mine", my_plugin_module)) as registry:
             assert "my-vla" in registry.names("model")
+
+    def test_my_model_conforms(vdb_observations):
+        check_model(MyModel(), vdb_observations(3), name="my-vla")
+
+Importing this package is cheap (names are imported on first use), so the pytest plugin never slows down
+or breaks a test session.
 """
 
 from __future__ import annotations
 
 import contextlib
 from collections.abc import Iterator
+from typing import TYPE_CHECKING, Any
 
-from vladrivebench._analysis.dataset import label_items, load_dataset, read_directory
-from vladrivebench._analysis.report import compute_all
-from vladrivebench._engine.registry import Registry, check_options, get_registry, set_registry
-from vladrivebench._engine.runner import EpisodeFailure, EpisodeResult, own_cot_policy, run_episode
-from vladrivebench._engine.sweep import ComponentSpec, RegistrySpec, RunConfig, make_jobs, run_sweep
-from vladrivebench._logs.episodes import EpisodeWriter, find_episodes, read_episode
+if TYPE_CHECKING:
+    from vladrivebench._engine.registry import Registry
+
+_LAZY = {
+    "Registry": "vladrivebench._engine.registry",
+    "check_options": "vladrivebench._engine.registry",
+    "get_registry": "vladrivebench._engine.registry",
+    "run_episode": "vladrivebench._engine.runner",
+    "own_cot_policy": "vladrivebench._engine.runner",
+    "EpisodeFailure": "vladrivebench._engine.runner",
+    "EpisodeResult": "vladrivebench._engine.runner",
+    "ComponentSpec": "vladrivebench._engine.sweep",
+    "RegistrySpec": "vladrivebench._engine.sweep",
+    "RunConfig": "vladrivebench._engine.sweep",
+    "make_jobs": "vladrivebench._engine.sweep",
+    "run_sweep": "vladrivebench._engine.sweep",
+    "EpisodeWriter": "vladrivebench._logs.episodes",
+    "find_episodes": "vladrivebench._logs.episodes",
+    "read_episode": "vladrivebench._logs.episodes",
+    "label_items": "vladrivebench._analysis.dataset",
+    "load_dataset": "vladrivebench._analysis.dataset",
+    "read_directory": "vladrivebench._analysis.dataset",
+    "compute_all": "vladrivebench._analysis.report",
+    "check_model": "vladrivebench.testing.conformance",
+    "check_bad_options": "vladrivebench.testing.conformance",
+    "check_simulator": "vladrivebench.testing.conformance",
+    "check_labeler": "vladrivebench.testing.conformance",
+    "check_metric": "vladrivebench.testing.conformance",
+    "DEFAULT_CONTROLS": "vladrivebench.testing.conformance",
+    "observations": "vladrivebench.testing.samples",
+    "synthetic_observation": "vladrivebench.testing.samples",
+    "sample_label_items": "vladrivebench.testing.samples",
+    "write_episode_dir": "vladrivebench.testing.samples",
+    "KeywordLabeler": "vladrivebench.testing.samples",
+}
+_RENAMED = {"sample_label_items": "label_items"}
 
 __all__ = [
     "isolated_registry", "registered", "core_plugin", "Registry", "check_options", "get_registry", "run_cli",
@@ -30,7 +79,26 @@ __all__ = [
     "run_episode", "own_cot_policy", "EpisodeFailure", "EpisodeResult",
     "ComponentSpec", "RegistrySpec", "RunConfig", "make_jobs", "run_sweep",
     "EpisodeWriter", "find_episodes", "read_episode", "label_items", "load_dataset", "read_directory", "compute_all",
+    # conformance checks
+    "check_model", "check_bad_options", "check_simulator", "check_labeler", "check_metric", "DEFAULT_CONTROLS",
+    # sample inputs
+    "observations", "synthetic_observation", "sample_label_items", "write_episode_dir", "KeywordLabeler",
 ]
+
+
+def __getattr__(name: str) -> Any:
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    import importlib
+
+    value = getattr(importlib.import_module(module), _RENAMED.get(name, name))
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))
 
 
 def core_plugin() -> tuple[str, object]:
@@ -51,6 +119,8 @@ def run_cli(args: list[str]) -> int:
 def build(kind: str, name: str, **options):
     """Build the registered component ``kind``/``name`` (e.g. ``build("controller", "pid")``) from the
     process-wide registry, checking ``options`` against its factory as the CLI does."""
+    from vladrivebench._engine.registry import get_registry
+
     return get_registry().create(kind, name, options)
 
 
@@ -63,6 +133,8 @@ def isolated_registry(*plugins: tuple[str, object], entry_points: bool = False,
     With ``entry_points=True`` the installed plugins are loaded too and ``plugins`` are added on top.
     The previous registry is restored afterwards, so one test's plugins never leak into another's.
     """
+    from vladrivebench._engine.registry import Registry, set_registry
+
     if core:
         plugins = (core_plugin(), *plugins)
     registry = Registry(plugins, entry_points=entry_points, strict=strict)

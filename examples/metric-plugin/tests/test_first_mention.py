@@ -1,4 +1,5 @@
-"""The example metric, registered in an isolated registry (nothing installed is relied upon)."""
+"""The example metric, registered in an isolated registry (nothing installed is relied upon), checked with
+the conformance kit of ``vladrivebench.testing`` and its pytest fixtures."""
 
 from __future__ import annotations
 
@@ -11,9 +12,8 @@ from vladrivebench.labels import LabelStore, label_key
 from vladrivebench.metrics import AnalysisDataset
 from vladrivebench.testing import (
     EpisodeWriter,
-    Registry,
+    check_metric,
     compute_all,
-    core_plugin,
     label_items,
     load_dataset,
     read_directory,
@@ -35,7 +35,14 @@ def write(path: Path, mention_below: float | None) -> None:
         writer.finish({"terminal": "route_complete"})
 
 
-def test_first_mention_table(tmp_path):
+def test_the_metric_conforms(vdb_registry, vdb_dataset):
+    """The conformance kit: tables whose every cell has a count, ids and titles, deterministic."""
+    registry = vdb_registry(("first-mention", plugin))
+    (table,) = check_metric(registry.create("metric", "first_mention"), vdb_dataset)
+    assert [row.labels for row in table.rows] == [("Pedestrian (in-lane)",), ("Traffic light (red)",)]
+
+
+def test_first_mention_table(tmp_path, vdb_registry):
     for i, below in enumerate([30.0, 20.0, 10.0, None]):
         write(tmp_path / f"e{i}.mcap", below)
     episodes, _ = read_directory(tmp_path)
@@ -43,7 +50,7 @@ def test_first_mention_table(tmp_path):
     store.add([(item, label_key(item, "hand", "1"), Labels(target_mentioned=item.text.startswith("pedestrian")))
                for _, _, item in label_items(episodes)], "1")
     dataset: AnalysisDataset = load_dataset(tmp_path)
-    registry = Registry([core_plugin(), ("first-mention", plugin)], entry_points=False)
+    registry = vdb_registry(("first-mention", plugin), core=True)
     sections = compute_all(dataset, registry)
     names = [s.metric for s in sections]
     assert names.index("first_mention") == names.index("mention_rate") + 1

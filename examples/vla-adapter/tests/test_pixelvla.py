@@ -1,6 +1,7 @@
 """The example adapter works the way CONTRIBUTING.md says a third-party plugin does.
 
-It is installed with pip into a temporary directory during the test and driven through the real CLI.
+It is installed with pip into a temporary directory during the test and driven through the real CLI; the
+model itself is checked with the conformance kit of ``vladrivebench.testing`` and its pytest fixtures.
 """
 
 from __future__ import annotations
@@ -13,6 +14,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from vdb_model_pixelvla import plugin
+from vdb_model_pixelvla.model import PixelVLA
+from vladrivebench.testing import check_bad_options, check_model
 
 EXAMPLE = Path(__file__).resolve().parents[1]
 
@@ -56,23 +60,23 @@ def test_bad_option_is_one_line(site, tmp_path):
     assert result.stderr.strip().count("\n") == 0 and "coupling" in result.stderr
 
 
-def test_selfsplice_is_exact_and_the_cot_drives_the_action():
-    sys.path.insert(0, str(EXAMPLE))
-    try:
-        from vdb_model_pixelvla.model import PixelVLA
-    finally:
-        sys.path.remove(str(EXAMPLE))
-    from vladrivebench import EgoState, GroundTruth, Observation
+def test_the_adapter_conforms(vdb_registry, vdb_observations):
+    """The conformance kit: protocol, selfsplice (digest and trajectory bit for bit), token limit."""
+    registry = vdb_registry(("pixelvla", plugin))
+    for options in ({}, {"coupling": 0.0}, {"red_threshold": 0.0}):
+        check_model(registry.create("model", "pixel-vla", options), vdb_observations(5), name="pixel-vla")
 
+
+def test_bad_options_are_one_line_errors_in_process(vdb_registry):
+    registry = vdb_registry(("pixelvla", plugin))
+    check_bad_options(lambda options: registry.create("model", "pixel-vla", options),
+                      [{"coupling": 2.0}, {"coupling": -0.5}], name="pixel-vla")
+
+
+def test_the_cot_drives_the_action(vdb_observation):
     model = PixelVLA(cruise_speed=6.0, red_threshold=0.002, obstacle_threshold=0.004, coupling=1.0)
-    image = np.full((80, 160, 3), 72, np.uint8)
-    obs = Observation(step=0, time=0.0, image=image, ego=EgoState(0, 0, 0, 5.0), command="follow_lane",
-                      ground_truth=GroundTruth(step=0, time=0.0))
-    own = model.generate_cot(obs, np.random.default_rng(0))
-    spliced = model.splice_cot(obs, own.text, np.random.default_rng(0))
-    assert model.state_digest(own) == model.state_digest(spliced)
-    go = model.decode_action(obs, own, np.random.default_rng(1))
-    assert np.array_equal(go.xy, model.decode_action(obs, spliced, np.random.default_rng(1)).xy)
-    stop = model.splice_cot(obs, "Stop for the pedestrian in the lane because it is blocking the lane.", None)
-    assert model.decode_action(obs, stop, np.random.default_rng(1)).forward_displacement(2.0) < \
+    go = model.decode_action(vdb_observation, model.splice_cot(vdb_observation, "Maintain speed.", None),
+                             np.random.default_rng(1))
+    stop = model.splice_cot(vdb_observation, "Stop for the pedestrian in the lane because it is blocking the lane.", None)
+    assert model.decode_action(vdb_observation, stop, np.random.default_rng(1)).forward_displacement(2.0) < \
         go.forward_displacement(2.0)

@@ -308,6 +308,9 @@ class BundledModel:
         if splice_mode not in SPLICE_MODES:
             raise ConfigError(f"model {self.name!r} option splice_mode={splice_mode!r} is not known "
                               f"(expected one of: {', '.join(SPLICE_MODES)})")
+        if isinstance(threads, bool) or not isinstance(threads, int) or not 1 <= threads <= 256:
+            raise ConfigError(f"model {self.name!r} option threads must be a whole number between 1 and 256, "
+                              f"got {threads!r}")
         configure_torch(threads)
         directory = Path(weights_dir) if weights_dir else None
         config, codec, tensors = load_bundle(self.name, directory)
