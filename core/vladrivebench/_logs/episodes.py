@@ -253,7 +253,9 @@ def step_messages(obs: Observation, cot: CoT, trajectory: Trajectory, control: C
 class EpisodeWriter:
     """Writes one episode log atomically.
 
-    Use as a context manager: ``write_step`` once per step, then ``finish(result)``, which writes the
+    ``foxglove`` adds the Foxglove channels (:mod:`vladrivebench._logs.foxglove`); ``message_indexes=False``
+    leaves the message-index records out (a smaller file that Foxglove's indexed reader cannot play; for
+    measuring their cost). Use as a context manager: ``write_step`` once per step, then ``finish(result)``, which writes the
     ``result`` record, fsyncs and renames the partial file to ``path``. Leaving the block without
     ``finish`` (an exception) removes the partial file: the episode log then does not exist.
 
@@ -265,11 +267,12 @@ class EpisodeWriter:
     """
 
     def __init__(self, path: Path | str, meta: Mapping[str, Any], *, log_images: bool = False,
-                 foxglove: bool = True, chunk_size: int = 64 * 1024):
+                 foxglove: bool = True, message_indexes: bool = True, chunk_size: int = 64 * 1024):
         self.path = Path(path)
         self.meta = dict(meta)
         self.log_images = log_images
         self.foxglove = foxglove
+        self.message_indexes = message_indexes
         self.chunk_size = chunk_size
         self.partial_path = self.path.with_name(f"{self.path.name}.{os.getpid()}{PARTIAL_SUFFIX}")
         self._file = None
@@ -288,8 +291,9 @@ class EpisodeWriter:
         _lock(self._file)  # held until closed: tells a resumed sweep this partial is still being written
         # Every index, message indexes included: players (Foxglove's indexed reader) need them. Message
         # indexes carry no CRC of their own; the data-section CRC in the DataEnd record covers them.
+        index_types = IndexType.ALL if self.message_indexes else IndexType.ALL & ~IndexType.MESSAGE
         self._writer = Writer(self._file, chunk_size=self.chunk_size, compression=CompressionType.ZSTD,
-                              enable_data_crcs=True, index_types=IndexType.ALL)
+                              enable_data_crcs=True, index_types=index_types)
         self._writer.start(profile=PROFILE, library=f"vladrivebench/{__version__}")
         topics = STEP_CHANNELS + ((CAMERA_CHANNEL,) if self.log_images else ())
         topics += foxglove.FOXGLOVE_CHANNELS if self.foxglove else ()
