@@ -394,7 +394,7 @@ def test_scene_shows_road_ego_actors_and_the_light_colour():
     assert (light["r"], light["g"], light["b"]) == (1.0, 0.0, 0.0)  # the red light drawn red
     assert update["deletions"][0]["type"] == 1  # everything of the previous step goes first
     road = update["entities"][0]["lines"][0]["points"]
-    assert road[0]["x"] == pytest.approx(obs.ego.to_world_frame(1.0, 0.0)[0])
+    assert road[0]["x"] == pytest.approx(obs.ego.to_world_frame(1.0, 0.0)[0], abs=1e-3)
     poses = foxglove.poses_in_frame(traj, 0)["poses"]
     assert [p["position"]["x"] for p in poses] == [0.5, 1.0, 1.5]
     assert foxglove.cot_log(cot, 0)["message"] == "[decision] Stop."
