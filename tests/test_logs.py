@@ -3,6 +3,7 @@ Foxglove (message indexes, Foxglove channels valid against their schemas, @mcap/
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import hashlib
 import json
@@ -485,3 +486,42 @@ def test_writer_can_leave_the_foxglove_channels_out(tmp_path):
         writer.finish({})
     topics = {r.topic for r in _mcap_records(tmp_path / "ep.mcap") if type(r).__name__ == "Channel"}
     assert topics == set(logs.STEP_CHANNELS)
+
+
+# -- typed reads: logged JSON → records ------------------------------------------------------------------
+_finite = st.floats(-1e6, 1e6, allow_nan=False, allow_infinity=False)
+_name = st.text(min_size=1, max_size=6)
+_actors = st.builds(Actor, actor_id=_name, kind=st.sampled_from(["pedestrian", "car", "traffic_light"]),
+                    x=_finite, y=_finite, yaw=_finite, length=_finite, width=_finite, height=_finite,
+                    speed=_finite, state=st.none() | st.sampled_from(["red", "green"]))
+_truths = st.builds(GroundTruth, step=st.integers(0, 10**6), time=_finite,
+                    actors=st.lists(_actors, max_size=3).map(tuple),
+                    critical_id=st.none() | _name, critical_kind=st.none() | _name,
+                    distance_to_critical=st.none() | _finite, blocking=st.booleans(),
+                    light_state=st.none() | st.sampled_from(["red", "yellow", "green"]),
+                    lead_gap=st.none() | _finite, lead_speed=st.none() | _finite, route_progress=_finite,
+                    route_length=_finite, collisions=st.lists(_name, max_size=2).map(tuple),
+                    violations=st.lists(_name, max_size=2).map(tuple), terminal=st.none() | _name,
+                    route_ahead=st.lists(st.tuples(_finite, _finite), max_size=4).map(tuple))
+_egos = st.builds(EgoState, x=_finite, y=_finite, yaw=_finite, speed=_finite, steer=_finite, length=_finite,
+                  width=_finite)
+
+
+@settings(max_examples=80, deadline=None)
+@given(truth=_truths, ego=_egos, next_state=st.none() | _egos, spliced=st.booleans(),
+       slots=st.dictionaries(_name, st.text(max_size=8), max_size=3), text=st.text(max_size=20),
+       times=st.lists(st.floats(0.01, 10), min_size=1, max_size=4))
+def test_every_logged_record_reads_back_equal(truth, ego, next_state, spliced, slots, text, times):
+    from vladrivebench._logs import decode
+
+    obs = Observation(truth.step, truth.time, np.zeros((1, 1, 3), np.uint8), ego, "left", truth)
+    cot = CoT(text, slots=slots, spliced=spliced)
+    trajectory = Trajectory(np.array(times), np.array([[t, -t] for t in times]))
+    control = Control(0.1, 0.2, 0.3, 0.4, next_state=next_state)
+    logged = json.loads(json.dumps(logs.step_messages(obs, cot, trajectory, control), default=logs._json_default))
+    assert decode.ego_from_json(logged["/ego"]) == ego
+    assert decode.ground_truth_from_json(logged["/ground_truth"]) == truth
+    assert decode.cot_from_json(logged["/cot"]) == cot
+    assert decode.trajectory_from_json(logged["/trajectory"]) == trajectory
+    assert decode.control_from_json(logged["/control"]) == control
+    assert truth["actors"] == [dataclasses.asdict(a) for a in truth.actors]  # the deprecated key access

@@ -78,14 +78,16 @@ def context_from_step(ego: EgoState | Mapping[str, Any],
 def _as_records(ego: Any, ground_truth: Any) -> tuple[EgoState, GroundTruth]:
     from vladrivebench._logs.decode import ego_from_json, ground_truth_from_json
 
+    # Dicts are read as before records: a missing speed is 0, a missing step and time do not matter here.
     try:
         if not isinstance(ego, EgoState):
-            ego = ego_from_json(ego)
+            ego = ego_from_json({"speed": 0.0, **ego} if isinstance(ego, Mapping) else ego)
     except ValueError as exc:
         raise LogError(f"ego state without a usable pose ({exc}); expected x, y, yaw, speed") from None
     try:
         if not isinstance(ground_truth, GroundTruth):
-            ground_truth = ground_truth_from_json(ground_truth)
+            ground_truth = ground_truth_from_json({"step": 0, "time": 0.0, **ground_truth}
+                                                  if isinstance(ground_truth, Mapping) else ground_truth)
     except ValueError as exc:
         raise LogError(f"unusable ground truth ({exc}); expected the fields of GroundTruth") from None
     return ego, ground_truth
