@@ -211,16 +211,18 @@ def scene_update(obs: Observation, time_ns: int) -> dict[str, Any]:
 
 
 def poses_in_frame(trajectory: Trajectory, time_ns: int) -> dict[str, Any]:
-    """The predicted waypoints in the ``ego`` frame, each heading along the path to it."""
+    """The predicted waypoints in the ``ego`` frame, each heading along the path to it (vectorised)."""
     import numpy as np
 
     xy = np.asarray(trajectory.xy, dtype=float)
-    rows = xy.tolist() if xy.ndim == 2 and xy.shape[1] == 2 else []
-    poses, previous = [], (0.0, 0.0)
-    for x, y in rows:
-        heading = math.atan2(y - previous[1], x - previous[0]) if (x, y) != previous else 0.0
-        poses.append(_pose(x, y, 0.0, heading))
-        previous = (x, y)
+    if xy.ndim != 2 or xy.shape[1:] != (2,) or len(xy) == 0:
+        return {"timestamp": stamp(time_ns), "frame_id": EGO_FRAME, "poses": []}
+    step = np.diff(np.vstack([[0.0, 0.0], xy]), axis=0)
+    heading = np.where(np.hypot(step[:, 0], step[:, 1]) > 0, np.arctan2(step[:, 1], step[:, 0]), 0.0)
+    columns = (np.round(xy[:, 0], 3) + 0.0, np.round(xy[:, 1], 3) + 0.0,
+               np.round(np.sin(heading / 2.0), 6) + 0.0, np.round(np.cos(heading / 2.0), 6) + 0.0)
+    poses = [{"position": {"x": x, "y": y, "z": 0.0}, "orientation": {"x": 0.0, "y": 0.0, "z": qz, "w": qw}}
+             for x, y, qz, qw in zip(*(c.tolist() for c in columns), strict=True)]
     return {"timestamp": stamp(time_ns), "frame_id": EGO_FRAME, "poses": poses}
 
 
