@@ -1,10 +1,15 @@
-"""Episode logs: round trip, atomic publication, truncation and corruption, schema versions, PNG."""
+"""Episode logs: round trip, atomic publication, truncation and corruption, schema versions, PNG, and
+Foxglove (message indexes, Foxglove channels valid against their schemas, @mcap/core's indexed reader)."""
 
 from __future__ import annotations
 
+import dataclasses
 import functools
+import hashlib
 import json
 import os
+import shutil
+import subprocess
 import sys
 import tempfile
 import zlib
@@ -17,6 +22,7 @@ from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 from vladrivebench._engine.runner import decode_png, observation_from_step
 from vladrivebench._logs import episodes as logs
+from vladrivebench._logs import foxglove
 from vladrivebench._logs.episodes import (
     EpisodeWriter,
     find_episodes,
@@ -66,17 +72,60 @@ def test_round_trip_keeps_every_field(tmp_path):
     obs, cot, traj, control, extras = make_step(2)
     record = episode.steps[2]
     assert record.time == pytest.approx(0.2)
-    assert record.ego == {"x": 2.0, "y": 0.5, "yaw": 0.1, "speed": 6.5, "steer": 0.0, "length": 4.7, "width": 1.9}
+    assert record.ego == obs.ego and isinstance(record.ego, EgoState)
+    assert record.ground_truth == obs.ground_truth  # actors as Actor tuples, route_ahead as tuples
+    assert record.ground_truth.actors[1] == Actor("tl0", "traffic_light", 50.0, 3.0, state="red")
+    assert record.cot == CoT(cot.text, slots={"decision": "Stop."}, spliced=False)
+    assert record.trajectory == traj and record.trajectory.xy.dtype == np.float64
+    assert record.control == control and record.control.next_state == EgoState(1.0, 2.0, 0.0, 6.4)
+    assert record.extras == {"shadow": {"brake": False, "v": 1.5}}
+    assert record.command == "straight" and record.image_png is None
+    assert episode.steps[-1].ground_truth.terminal == "collision"
+
+
+def test_records_still_answer_the_logged_keys_of_the_dict_era(tmp_path):
+    """The deprecated key access: ``step.ego["x"]`` and ``.get`` give the logged JSON values."""
+    record = read_episode(write_episode(tmp_path / "ep.mcap")).steps[2]
+    assert record.ego["x"] == 2.0 and record.ego.get("nope", 7) == 7
     assert record.ground_truth["actors"][1] == {"actor_id": "tl0", "kind": "traffic_light", "x": 50.0, "y": 3.0,
                                                 "yaw": 0.0, "length": 0.5, "width": 0.5, "height": 1.7,
                                                 "speed": 0.0, "state": "red"}
-    assert set(record.ground_truth) == set(GroundTruth.__dataclass_fields__)
-    assert record.cot == {"text": cot.text, "slots": {"decision": "Stop."}, "spliced": False}
-    assert record.trajectory == traj.to_json()
-    assert record.control["next_state"]["speed"] == 6.4 and record.control["v_des"] == 6.4
-    assert record.extras == {"shadow": {"brake": False, "v": 1.5}}
-    assert record.command == "straight" and record.image_png is None
-    assert episode.steps[-1].ground_truth["terminal"] == "collision"
+    assert record.ground_truth.get("distance_to_critical") == 18.0
+    assert record.trajectory["times"] == make_step(2)[2].to_json()["times"]
+    assert record.control["next_state"]["speed"] == 6.4 and record.control.get("brake") == 0.0
+    assert record.cot["text"] == "Stop for the pedestrian. "
+    with pytest.raises(KeyError):
+        record.ego["missing"]
+
+
+@pytest.mark.parametrize(("topic", "message", "complaint"), [
+    ("/ego", {"x": 1.0, "y": 0.0, "yaw": 0.0}, "ego lacks 'speed'"),
+    ("/ego", {"x": "1", "y": 0.0, "yaw": 0.0, "speed": 1.0}, "ego.x is '1', expected a number"),
+    ("/ego", [1, 2], "ego is list, expected a JSON object"),
+    ("/ground_truth", {"step": 0}, "ground_truth lacks 'time'"),
+    ("/ground_truth", {"step": 0, "time": 0.0, "actors": [{"kind": "car", "x": 1, "y": 2}]},
+     "ground_truth.actors\\[0\\] lacks 'actor_id'"),
+    ("/ground_truth", {"step": 0, "time": 0.0, "route_ahead": [[1.0]]}, "ground_truth.route_ahead has 1 coordinates, expected 2"),
+    ("/trajectory", {"times": [0.1], "xy": [[1.0, "a"]]}, "trajectory.xy is 'a', expected a number"),
+    ("/control", {"throttle": 0.0, "steer": 0.0, "brake": 0.0}, "control lacks 'v_des'"),
+    ("/cot", {"text": "x", "slots": {"a": 3}}, "cot.slots.a is 3, expected a string"),
+    ("/extras", [1], "extras is list"),
+])
+def test_a_message_of_the_wrong_shape_is_one_log_error_naming_step_and_field(tmp_path, monkeypatch, topic,
+                                                                            message, complaint):
+    original = logs.step_messages
+
+    def with_bad_message(*args, **kwargs):
+        return {**original(*args, **kwargs), topic: message}
+
+    monkeypatch.setattr(logs, "step_messages", with_bad_message)
+    monkeypatch.setattr(logs.foxglove, "step_messages", lambda *a, **k: {})
+    path = tmp_path / "bad.mcap"
+    with EpisodeWriter(path, META, foxglove=False) as writer:
+        writer.write_step(*make_step(0))
+        writer.finish({})
+    with pytest.raises(LogError, match=f"bad.mcap: step 0: {complaint}"):
+        read_episode(path)
 
 
 def test_observation_rebuilt_from_a_logged_step_equals_the_original(tmp_path):
@@ -263,3 +312,216 @@ def test_reader_does_not_import_heavy_libraries():
     code = "import vladrivebench._logs.episodes, sys; print('torch' in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "False"
+
+
+# -- Foxglove: every message read by @mcap/core's indexed reader and valid against its schema ---------------
+
+JS_DIR = Path(__file__).parent / "js"
+
+
+def _mcap_records(path: Path):
+    from mcap.stream_reader import StreamReader
+
+    with open(path, "rb") as handle:
+        yield from StreamReader(handle, validate_crcs=True).records
+
+
+def test_every_message_is_valid_against_its_json_schema(tmp_path):
+    from jsonschema import Draft202012Validator
+    from mcap.records import Channel, Message, Schema
+
+    path = write_episode(tmp_path / "ep.mcap", steps=6, log_images=True)
+    schemas, channels, seen = {}, {}, {}
+    for record in _mcap_records(path):
+        if isinstance(record, Schema):
+            schema = json.loads(record.data)
+            Draft202012Validator.check_schema(schema)
+            schemas[record.id] = (record.name, Draft202012Validator(schema))
+        elif isinstance(record, Channel):
+            channels[record.id] = (record.topic, *schemas[record.schema_id])
+        elif isinstance(record, Message):
+            topic, name, validator = channels[record.channel_id]
+            errors = [e.message for e in validator.iter_errors(json.loads(record.data))]
+            assert not errors, f"{topic} ({name}) step {record.sequence}: {errors[:3]}"
+            seen[topic] = seen.get(topic, 0) + 1
+    assert {channels[c][0]: channels[c][1] for c in channels}.items() >= {
+        "/foxglove/tf": "foxglove.FrameTransforms", "/foxglove/scene": "foxglove.SceneUpdate",
+        "/foxglove/trajectory": "foxglove.PosesInFrame", "/foxglove/cot": "foxglove.Log",
+        "/camera": "foxglove.CompressedImage"}.items()
+    assert set(seen.values()) == {6}
+
+
+def test_message_indexes_are_written_for_every_channel(tmp_path):
+    from mcap.reader import make_reader
+
+    path = write_episode(tmp_path / "ep.mcap", steps=4)
+    with open(path, "rb") as handle:
+        summary = make_reader(handle).get_summary()
+    indexed = {channel for index in summary.chunk_indexes for channel in index.message_index_offsets}
+    assert indexed == set(summary.channels) and all(i.message_index_length > 0 for i in summary.chunk_indexes)
+    assert summary.statistics.message_count == 4 * len(summary.channels)
+
+
+def _record_offsets(data: bytes, opcode: int) -> list[int]:
+    """Offsets of the top-level records with ``opcode`` (walking opcode + u64 length framing)."""
+    offsets, position = [], 8
+    while position + 9 <= len(data) - 8:
+        length = int.from_bytes(data[position + 1:position + 9], "little")
+        if data[position] == opcode:
+            offsets.append(position)
+        position += 9 + length
+    return offsets
+
+
+@pytest.mark.parametrize("inside", [9, 12, 20, 30])
+def test_a_flip_inside_a_message_index_is_detected(tmp_path, inside):
+    path = write_episode(tmp_path / "ep.mcap", steps=4)
+    data = bytearray(path.read_bytes())
+    indexes = _record_offsets(bytes(data), 0x07)
+    assert indexes, "the log holds message index records"
+    data[indexes[len(indexes) // 2] + inside] ^= 0x01
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(bytes(data))
+    with pytest.raises(logs.LogError, match="bad.mcap"):
+        read_episode(bad)
+
+
+def test_scene_shows_road_ego_actors_and_the_light_colour():
+    obs, cot, traj, control, _ = make_step(2)
+    update = foxglove.scene_update(obs, 200_000_000)
+    ids = [e["id"] for e in update["entities"]]
+    assert ids == ["road", "ego", "actor/ped0", "actor/tl0"]
+    light = update["entities"][3]["cubes"][0]["color"]
+    assert (light["r"], light["g"], light["b"]) == (1.0, 0.0, 0.0)  # the red light drawn red
+    assert update["deletions"][0]["type"] == 1  # everything of the previous step goes first
+    road = update["entities"][0]["lines"][0]["points"]
+    assert road[0]["x"] == pytest.approx(obs.ego.to_world_frame(1.0, 0.0)[0], abs=1e-3)
+    poses = foxglove.poses_in_frame(traj, 0)["poses"]
+    assert [p["position"]["x"] for p in poses] == [0.5, 1.0, 1.5]
+    assert foxglove.cot_log(cot, 0)["message"] == "[decision] Stop."
+
+
+def test_logs_without_foxglove_channels_and_of_schema_version_1_still_read(tmp_path, monkeypatch):
+    monkeypatch.setattr(logs, "SCHEMA_VERSION", "1")
+    path = write_episode(tmp_path / "old.mcap", foxglove=False)
+    monkeypatch.setattr(logs, "SCHEMA_VERSION", "1.1")
+    episode = read_episode(path)
+    assert episode.meta["schema_version"] == "1" and len(episode.steps) == 5
+
+
+def test_foxglove_channels_do_not_change_what_readers_see(tmp_path):
+    plain = read_episode(write_episode(tmp_path / "a.mcap", foxglove=False))
+    full = read_episode(write_episode(tmp_path / "b.mcap"))
+    assert plain.steps == full.steps and plain.result == full.result
+
+
+def test_layout_names_channels_the_writer_writes():
+    from importlib.resources import files
+
+    layout = json.loads(files("vladrivebench._logs").joinpath("foxglove_layout.json").read_text("utf-8"))
+    text = json.dumps(layout)
+    for topic in (*foxglove.FOXGLOVE_CHANNELS, foxglove.CAMERA_CHANNEL):
+        assert f'"{topic}' in text, topic
+    assert set(layout) >= {"configById", "layout"}
+
+
+# -- @mcap/core under Node --------------------------------------------------------------------------
+@pytest.fixture(scope="session")
+def mcap_js(tmp_path_factory) -> Path:
+    """tests/js installed with `npm ci` once per package-lock into a cache directory."""
+    npm, node = shutil.which("npm"), shutil.which("node")
+    if npm is None or node is None:
+        pytest.skip("npm/node not installed: the @mcap/core reader test needs Node.js and npm")
+    lock = (JS_DIR / "package-lock.json").read_bytes()
+    cache = Path.home() / ".cache" / "vladrivebench" / f"js-{hashlib.sha256(lock).hexdigest()[:16]}"
+    if not (cache / "node_modules" / ".ok").exists():
+        staging = tmp_path_factory.mktemp("npm")
+        for name in ("package.json", "package-lock.json", "read_indexed.mjs"):
+            shutil.copy(JS_DIR / name, staging / name)
+        done = subprocess.run([npm, "ci", "--no-audit", "--no-fund", "--loglevel=error"], cwd=staging,
+                              capture_output=True, text=True, timeout=600)
+        assert done.returncode == 0, f"npm ci in tests/js failed (network to the npm registry?): {done.stderr}"
+        (staging / "node_modules" / ".ok").write_text("ok")
+        cache.parent.mkdir(parents=True, exist_ok=True)
+        shutil.rmtree(cache, ignore_errors=True)
+        shutil.copytree(staging, cache)
+    shutil.copy(JS_DIR / "read_indexed.mjs", cache / "read_indexed.mjs")
+    return cache
+
+
+def read_with_mcap_js(cache: Path, *paths: Path) -> list[dict]:
+    done = subprocess.run([shutil.which("node"), str(cache / "read_indexed.mjs"), *map(str, paths)],
+                          capture_output=True, text=True, timeout=300)
+    return [json.loads(line) for line in done.stdout.splitlines() if line.strip()] or [{"fatal": done.stderr}]
+
+
+def test_mcap_indexed_reader_reads_every_message_of_a_fresh_episode(mcap_js, tmp_path):
+    paths = [write_episode(tmp_path / "plain.mcap", steps=12),
+             write_episode(tmp_path / "images.mcap", steps=12, log_images=True)]
+    for report, path in zip(read_with_mcap_js(mcap_js, *paths), paths, strict=True):
+        assert "fatal" not in report, report
+        assert report["errors"] == [], report["errors"]
+        channels = len(logs.STEP_CHANNELS) + len(foxglove.FOXGLOVE_CHANNELS) + (path.name == "images.mcap")
+        assert report["counts"] == {topic: 12 for topic in report["schemas"]} and len(report["counts"]) == channels
+        assert sum(report["counts"].values()) == report["messageCount"]
+        assert report["metadata"] == ["episode", "result"]
+
+
+def test_mcap_indexed_reader_reads_a_run_of_the_real_simulator(mcap_js, tmp_path):
+    from vladrivebench._cli.main import main
+
+    out = tmp_path / "run"
+    assert main(["run", "--model", "scripted", "--scenarios", "TL.1-red", "--seeds", "1", "--log-images",
+                 "--out", str(out)]) in (0, None)
+    paths = sorted(out.rglob("*.mcap"))
+    reports = read_with_mcap_js(mcap_js, *paths)
+    assert all("fatal" not in r and r["errors"] == [] for r in reports), reports
+    scene_steps = reports[0]["counts"]["/foxglove/scene"]
+    assert scene_steps == len(read_episode(paths[0]).steps) > 0
+
+
+def test_writer_can_leave_the_foxglove_channels_out(tmp_path):
+    with EpisodeWriter(tmp_path / "ep.mcap", META, foxglove=False) as writer:
+        writer.write_step(*make_step(0, terminal="timeout"))
+        writer.finish({})
+    topics = {r.topic for r in _mcap_records(tmp_path / "ep.mcap") if type(r).__name__ == "Channel"}
+    assert topics == set(logs.STEP_CHANNELS)
+
+
+# -- typed reads: logged JSON → records ------------------------------------------------------------------
+_finite = st.floats(-1e6, 1e6, allow_nan=False, allow_infinity=False)
+_name = st.text(min_size=1, max_size=6)
+_actors = st.builds(Actor, actor_id=_name, kind=st.sampled_from(["pedestrian", "car", "traffic_light"]),
+                    x=_finite, y=_finite, yaw=_finite, length=_finite, width=_finite, height=_finite,
+                    speed=_finite, state=st.none() | st.sampled_from(["red", "green"]))
+_truths = st.builds(GroundTruth, step=st.integers(0, 10**6), time=_finite,
+                    actors=st.lists(_actors, max_size=3).map(tuple),
+                    critical_id=st.none() | _name, critical_kind=st.none() | _name,
+                    distance_to_critical=st.none() | _finite, blocking=st.booleans(),
+                    light_state=st.none() | st.sampled_from(["red", "yellow", "green"]),
+                    lead_gap=st.none() | _finite, lead_speed=st.none() | _finite, route_progress=_finite,
+                    route_length=_finite, collisions=st.lists(_name, max_size=2).map(tuple),
+                    violations=st.lists(_name, max_size=2).map(tuple), terminal=st.none() | _name,
+                    route_ahead=st.lists(st.tuples(_finite, _finite), max_size=4).map(tuple))
+_egos = st.builds(EgoState, x=_finite, y=_finite, yaw=_finite, speed=_finite, steer=_finite, length=_finite,
+                  width=_finite)
+
+
+@settings(max_examples=80, deadline=None)
+@given(truth=_truths, ego=_egos, next_state=st.none() | _egos, spliced=st.booleans(),
+       slots=st.dictionaries(_name, st.text(max_size=8), max_size=3), text=st.text(max_size=20),
+       times=st.lists(st.floats(0.01, 10), min_size=1, max_size=4))
+def test_every_logged_record_reads_back_equal(truth, ego, next_state, spliced, slots, text, times):
+    from vladrivebench._logs import decode
+
+    obs = Observation(truth.step, truth.time, np.zeros((1, 1, 3), np.uint8), ego, "left", truth)
+    cot = CoT(text, slots=slots, spliced=spliced)
+    trajectory = Trajectory(np.array(times), np.array([[t, -t] for t in times]))
+    control = Control(0.1, 0.2, 0.3, 0.4, next_state=next_state)
+    logged = json.loads(json.dumps(logs.step_messages(obs, cot, trajectory, control), default=logs._json_default))
+    assert decode.ego_from_json(logged["/ego"]) == ego
+    assert decode.ground_truth_from_json(logged["/ground_truth"]) == truth
+    assert decode.cot_from_json(logged["/cot"]) == cot
+    assert decode.trajectory_from_json(logged["/trajectory"]) == trajectory
+    assert decode.control_from_json(logged["/control"]) == control
+    assert truth["actors"] == [dataclasses.asdict(a) for a in truth.actors]  # the deprecated key access

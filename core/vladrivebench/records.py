@@ -8,7 +8,7 @@ Records are plain frozen dataclasses so that they pickle (process pools) and ser
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:  # numpy is imported where it is used: `vdb list-plugins` imports records
@@ -20,8 +20,42 @@ NAV_COMMANDS = ("follow_lane", "straight", "left", "right")
 STATED_ACTIONS = ("maintaining", "accelerating", "decelerating", "keep_distance", "none")
 
 
+class _LoggedKeys:
+    """Deprecated read access by logged key, for code written when episode steps held JSON dicts.
+
+    ``record["x"]`` and ``record.get("x", default)`` return the field's value in the form the episode
+    log holds it (records as dicts, tuples and arrays as lists). New code reads attributes
+    (``record.x``); this shim goes once no reader in the project uses keys.
+    """
+
+    __slots__ = ()
+
+    def __getitem__(self, key: str) -> Any:
+        if not isinstance(key, str) or key not in {f.name for f in fields(self)}:
+            raise KeyError(key)
+        return _logged_form(getattr(self, key))
+
+    def get(self, key: str, default: Any = None) -> Any:
+        try:
+            return self[key]
+        except KeyError:
+            return default
+
+
+def _logged_form(value: Any) -> Any:
+    if hasattr(value, "__dataclass_fields__") and not isinstance(value, type):
+        return {f.name: _logged_form(getattr(value, f.name)) for f in fields(value)}
+    if isinstance(value, (list, tuple)):
+        return [_logged_form(v) for v in value]
+    if isinstance(value, dict):
+        return {k: _logged_form(v) for k, v in value.items()}
+    if hasattr(value, "tolist"):  # numpy arrays and scalars
+        return value.tolist()
+    return value
+
+
 @dataclass(frozen=True)
-class EgoState:
+class EgoState(_LoggedKeys):
     """The ego vehicle's pose and motion in the world frame."""
 
     x: float
@@ -45,7 +79,7 @@ class EgoState:
 
 
 @dataclass(frozen=True)
-class Actor:
+class Actor(_LoggedKeys):
     """One thing in the world the ego must reason about: a road user or a road feature.
 
     ``kind`` is one of :data:`ACTOR_KINDS`. ``state`` holds the light colour for a traffic light and is
@@ -65,7 +99,7 @@ class Actor:
 
 
 @dataclass(frozen=True)
-class GroundTruth:
+class GroundTruth(_LoggedKeys):
     """What was true at one step: everything the labelers and quality metrics compare a CoT against.
 
     ``distance_to_critical`` is measured along the route from the ego's position to the critical feature
@@ -144,7 +178,7 @@ class TrajectorySpec:
 
 
 @dataclass(frozen=True)
-class CoT:
+class CoT(_LoggedKeys):
     """A chain-of-thought: its text, its named slots (multi-round formats) and the model's own state.
 
     ``text`` is the whole CoT as one string (slots joined in order for slotted formats). ``state`` is opaque
@@ -162,8 +196,8 @@ class CoT:
         return " ".join(slots[name] for name in slots)
 
 
-@dataclass(frozen=True)
-class Trajectory:
+@dataclass(frozen=True, eq=False)
+class Trajectory(_LoggedKeys):
     """Timed waypoints in the ego frame at the moment of prediction.
 
     ``times`` has shape ``(T,)`` strictly increasing and positive (seconds ahead); ``xy`` has shape
@@ -172,6 +206,14 @@ class Trajectory:
 
     times: np.ndarray
     xy: np.ndarray
+
+    def __eq__(self, other: object) -> bool:
+        """Equal when both arrays have the same shapes and values (arrays make field-wise ``==`` ambiguous)."""
+        if not isinstance(other, Trajectory):
+            return NotImplemented
+        import numpy as np
+
+        return bool(np.array_equal(self.times, other.times) and np.array_equal(self.xy, other.xy))
 
     def problems(self) -> str | None:
         """Why this trajectory cannot be used, or ``None`` when it is well formed."""
@@ -213,7 +255,7 @@ class Trajectory:
 
 
 @dataclass(frozen=True)
-class Control:
+class Control(_LoggedKeys):
     """A controller's output for one step.
 
     PID-style controllers set ``throttle``/``steer``/``brake`` (the simulator integrates them through the

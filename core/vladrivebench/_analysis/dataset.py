@@ -95,12 +95,12 @@ def _build_views(dataset: AnalysisDataset, episode: Any) -> list[StepView]:
     views, travelled, previous = [], 0.0, None
     for record in episode.steps:
         ego, truth = record.ego, record.ground_truth
-        x, y, speed = float(ego.get("x", 0.0)), float(ego.get("y", 0.0)), float(ego.get("speed", 0.0))
+        x, y, speed = float(ego.x), float(ego.y), float(ego.speed)
         if previous is not None:
             travelled += math.hypot(x - previous[0], y - previous[1])
         previous = (x, y)
-        distance = truth.get("distance_to_critical")
-        v_des = (record.control or {}).get("v_des")
+        distance = truth.distance_to_critical
+        v_des = record.control.v_des
         views.append(StepView(
             step=record.step,
             distance=None if distance is None else float(distance),
@@ -108,9 +108,9 @@ def _build_views(dataset: AnalysisDataset, episode: Any) -> list[StepView]:
             speed=speed,
             v_des=None if v_des is None else float(v_des),
             travelled=travelled,
-            ttc=time_to_collision(truth.get("lead_gap"), speed, truth.get("lead_speed")),
-            critical_kind=truth.get("critical_kind"),
-            light_state=truth.get("light_state"),
+            ttc=time_to_collision(truth.lead_gap, speed, truth.lead_speed),
+            critical_kind=truth.critical_kind,
+            light_state=truth.light_state,
             labels=dataset.labels_for(episode, record.step),
         ))
     return views

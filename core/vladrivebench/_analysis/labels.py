@@ -21,7 +21,15 @@ from pathlib import Path
 from typing import Any
 
 from vladrivebench.errors import ConfigError, LogError
-from vladrivebench.records import LIGHT_COLOURS, STATED_ACTIONS, CoT, LabelInput, Labels
+from vladrivebench.records import (
+    LIGHT_COLOURS,
+    STATED_ACTIONS,
+    CoT,
+    EgoState,
+    GroundTruth,
+    LabelInput,
+    Labels,
+)
 
 LABELS_DIRNAME = "labels"
 PROPERTIES = ("stated_action", "target_mentioned", "mention_slot", "light_colour", "hallucination",
@@ -32,50 +40,69 @@ _DECIMALS = 2  # positions and speeds in a context are rounded to 1 cm (cm/s) so
 
 
 # -- context -------------------------------------------------------------------------------------------
-def context_from_step(ego: Mapping[str, Any], ground_truth: Mapping[str, Any]) -> dict[str, Any]:
+def context_from_step(ego: EgoState | Mapping[str, Any],
+                      ground_truth: GroundTruth | Mapping[str, Any]) -> dict[str, Any]:
     """The labeler's view of one step: the critical feature, every actor in the ego frame, the light.
 
-    ``ego`` and ``ground_truth`` are the logged dicts (``dataclasses.asdict`` of
-    :class:`~vladrivebench.records.EgoState` / :class:`~vladrivebench.records.GroundTruth`).
+    ``ego`` and ``ground_truth`` are the step's records (``StepRecord.ego`` / ``StepRecord.ground_truth``);
+    their logged JSON form (dicts) is accepted too. An ego without a pose raises :class:`LogError`.
     """
-    try:
-        x, y, yaw = float(ego["x"]), float(ego["y"]), float(ego["yaw"])
-        speed = float(ego.get("speed", 0.0))
-    except (KeyError, TypeError, ValueError) as exc:
-        raise LogError(f"ego state without a usable pose ({exc}); expected x, y, yaw, speed") from None
+    ego, ground_truth = _as_records(ego, ground_truth)
+    x, y, yaw, speed = float(ego.x), float(ego.y), float(ego.yaw), float(ego.speed)
     cos, sin = math.cos(yaw), math.sin(yaw)
     actors = []
     critical_position = critical_speed = None
-    critical_id = ground_truth.get("critical_id")
-    for actor in ground_truth.get("actors") or ():
-        dx, dy = float(actor["x"]) - x, float(actor["y"]) - y
+    critical_id = ground_truth.critical_id
+    for actor in ground_truth.actors:
+        dx, dy = float(actor.x) - x, float(actor.y) - y
         position = [_round(cos * dx + sin * dy), _round(-sin * dx + cos * dy)]
-        entry = {"id": actor.get("actor_id"), "kind": actor.get("kind"), "position": position,
-                 "speed": _round(float(actor.get("speed") or 0.0)), "state": actor.get("state")}
+        entry = {"id": actor.actor_id, "kind": actor.kind, "position": position,
+                 "speed": _round(float(actor.speed or 0.0)), "state": actor.state}
         actors.append(entry)
-        if critical_id is not None and actor.get("actor_id") == critical_id:
+        if critical_id is not None and actor.actor_id == critical_id:
             critical_position, critical_speed = position, entry["speed"]
     return {
-        "critical_kind": ground_truth.get("critical_kind"),
+        "critical_kind": ground_truth.critical_kind,
         "critical_position": critical_position,
         "critical_speed": critical_speed,
-        "distance_to_critical": _round_or_none(ground_truth.get("distance_to_critical")),
-        "blocking": bool(ground_truth.get("blocking", False)),
-        "light_state": ground_truth.get("light_state"),
+        "distance_to_critical": _round_or_none(ground_truth.distance_to_critical),
+        "blocking": bool(ground_truth.blocking),
+        "light_state": ground_truth.light_state,
         "actors": actors,
         "ego_speed": _round(speed),
-        "lead_gap": _round_or_none(ground_truth.get("lead_gap")),
-        "lead_speed": _round_or_none(ground_truth.get("lead_speed")),
+        "lead_gap": _round_or_none(ground_truth.lead_gap),
+        "lead_speed": _round_or_none(ground_truth.lead_speed),
     }
 
 
-def label_input(cot: Mapping[str, Any], context: Mapping[str, Any], key: str = "") -> LabelInput:
-    """A :class:`LabelInput` from a logged ``/cot`` dict (text, slots) and a context."""
-    slots = dict(cot.get("slots") or {})
-    text = cot.get("text")
-    if not isinstance(text, str):
-        text = CoT.join_slots(slots) if slots else ""
-    return LabelInput(text=text, slots=slots, context=dict(context), key=key)
+def _as_records(ego: Any, ground_truth: Any) -> tuple[EgoState, GroundTruth]:
+    from vladrivebench._logs.decode import ego_from_json, ground_truth_from_json
+
+    # Dicts are read as before records: a missing speed is 0, a missing step and time do not matter here.
+    try:
+        if not isinstance(ego, EgoState):
+            ego = ego_from_json({"speed": 0.0, **ego} if isinstance(ego, Mapping) else ego)
+    except ValueError as exc:
+        raise LogError(f"ego state without a usable pose ({exc}); expected x, y, yaw, speed") from None
+    try:
+        if not isinstance(ground_truth, GroundTruth):
+            ground_truth = ground_truth_from_json({"step": 0, "time": 0.0, **ground_truth}
+                                                  if isinstance(ground_truth, Mapping) else ground_truth)
+    except ValueError as exc:
+        raise LogError(f"unusable ground truth ({exc}); expected the fields of GroundTruth") from None
+    return ego, ground_truth
+
+
+def label_input(cot: CoT | Mapping[str, Any], context: Mapping[str, Any], key: str = "") -> LabelInput:
+    """A :class:`LabelInput` from a step's :class:`CoT` (or its logged ``/cot`` dict) and a context."""
+    if not isinstance(cot, CoT):
+        from vladrivebench._logs.decode import cot_from_json
+
+        try:
+            cot = cot_from_json(cot)
+        except ValueError as exc:
+            raise LogError(f"unusable CoT ({exc}); expected text and slots") from None
+    return LabelInput(text=cot.text, slots=dict(cot.slots), context=dict(context), key=key)
 
 
 def _round(value: float) -> float:

@@ -24,7 +24,7 @@ import numpy as np
 from vladrivebench._engine.rng import step_rng
 from vladrivebench.errors import ModelOutputError, VdbError
 from vladrivebench.protocols import Controller, CoTExtras, Simulator, VLAModel
-from vladrivebench.records import Actor, Control, CoT, EgoState, GroundTruth, Observation, Trajectory
+from vladrivebench.records import Control, CoT, GroundTruth, Observation, Trajectory
 
 StepOutput = tuple[CoT, Trajectory, dict]
 StepPolicy = Callable[[VLAModel, Observation, int], StepOutput]
@@ -248,14 +248,8 @@ def observation_from_step(record: Any, *, scenario_id: str = "", image: np.ndarr
     """
     if image is None:
         image = decode_png(record.image_png) if record.image_png else np.zeros((1, 1, 3), np.uint8)
-    gt = dict(record.ground_truth)
-    actors = tuple(Actor(**a) for a in gt.pop("actors", ()))
-    tuples = {k: tuple(gt[k]) for k in ("collisions", "violations") if k in gt}
-    if "route_ahead" in gt:
-        tuples["route_ahead"] = tuple(tuple(p) for p in gt["route_ahead"])
-    ground_truth = GroundTruth(**{**gt, **tuples, "actors": actors})
-    return Observation(step=record.step, time=record.time, image=image, ego=EgoState(**record.ego),
-                       command=record.command or "follow_lane", ground_truth=ground_truth,
+    return Observation(step=record.step, time=record.time, image=image, ego=record.ego,
+                       command=record.command or "follow_lane", ground_truth=record.ground_truth,
                        scenario_id=scenario_id)
 
 

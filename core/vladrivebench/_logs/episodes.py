@@ -1,6 +1,6 @@
 """Episode logs: one MCAP file per episode, the single source of truth for every analysis.
 
-Layout of a log (schema version ``"1"``, every message JSON-encoded, one message per channel per step,
+Layout of a log (schema version ``"1.1"``, every message JSON-encoded, one message per channel per step,
 ``log_time`` = simulated time in nanoseconds, ``sequence`` = step number):
 
 ==================  ===========================================================================
@@ -12,8 +12,17 @@ Layout of a log (schema version ``"1"``, every message JSON-encoded, one message
 ``/extras``         whatever the step policy returned as extras (``{}`` by default)
 ``/command``        ``{"command"}``: the navigation command the model was given
 ``/camera``         optional (``log_images``): ``{"timestamp", "frame_id", "format": "png", "data"}``
-                    with base64 PNG data (foxglove ``CompressedImage`` layout)
+                    with base64 PNG data (``foxglove.CompressedImage``)
+``/foxglove/*``     for players (``foxglove=True``, the default): frames, the scene, the trajectory
+                    and the CoT as Foxglove messages (see :mod:`vladrivebench._logs.foxglove`)
 ==================  ===========================================================================
+
+Reading gives typed steps: :class:`StepRecord` holds the public records of :mod:`vladrivebench.records`.
+
+Indexes: the summary holds every MCAP index (chunk, message, metadata, statistics), so indexed readers
+such as Foxglove's ``McapIndexedReader`` play a log. Damage is detected without trusting any index: chunk
+CRCs, the data-section CRC (which covers the message indexes, the only records without a CRC of their
+own) and the summary CRC; the reader reads the data section in order.
 
 Metadata records: ``episode`` (written first: ``{"schema_version", "json"}`` where ``json`` holds the
 episode description — ids, components and their options, scenario spec, seed, run configuration,
@@ -40,13 +49,16 @@ from typing import Any
 
 import numpy as np
 
+from vladrivebench._logs import decode, foxglove
 from vladrivebench.errors import LogError
-from vladrivebench.records import Control, CoT, Observation, Trajectory
+from vladrivebench.records import Control, CoT, EgoState, GroundTruth, Observation, Trajectory
 
-SCHEMA_VERSION = "1"
+SCHEMA_VERSION = "1.1"
+"""Major.minor: readers accept every minor version of their major (1.1 added the message indexes and the
+Foxglove channels, which a 1.0 reader ignores)."""
 PARTIAL_SUFFIX = ".partial"
 STEP_CHANNELS = ("/ego", "/ground_truth", "/cot", "/trajectory", "/control", "/extras", "/command")
-CAMERA_CHANNEL = "/camera"
+CAMERA_CHANNEL = foxglove.CAMERA_CHANNEL
 PROFILE = "vladrivebench"
 _NS = 1_000_000_000
 _MAGIC = b"\x89MCAP0\r\n"
@@ -113,31 +125,27 @@ _SCHEMAS: dict[str, dict[str, Any]] = {
     },
     "/extras": {"title": "vdb.Extras", "type": "object"},
     "/command": {"title": "vdb.Command", "type": "object", "properties": {"command": {"type": "string"}}},
-    CAMERA_CHANNEL: {
-        "title": "foxglove.CompressedImage",
-        "type": "object",
-        "properties": {
-            "timestamp": {"type": "object"},
-            "frame_id": {"type": "string"},
-            "format": {"type": "string"},
-            "data": {"type": "string", "contentEncoding": "base64"},
-        },
-    },
 }
 
 
 # -- records ----------------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class StepRecord:
-    """One logged step, every field as the plain JSON the log holds."""
+    """One logged step, as the records it was written from.
+
+    ``ego``, ``ground_truth`` (actors as :class:`~vladrivebench.records.Actor` tuples), ``cot`` (text, slots,
+    spliced; no model state), ``trajectory`` (float arrays) and ``control`` are the public records of
+    :mod:`vladrivebench.records`; ``extras`` is the free-form JSON the step policy returned; ``command`` the
+    navigation command; ``image_png`` the logged camera PNG (``None`` unless the run logged images).
+    """
 
     step: int
     time: float
-    ego: dict
-    ground_truth: dict
-    cot: dict
-    trajectory: dict
-    control: dict
+    ego: EgoState
+    ground_truth: GroundTruth
+    cot: CoT
+    trajectory: Trajectory
+    control: Control
     extras: dict
     command: str = ""
     image_png: bytes | None = None
@@ -245,7 +253,9 @@ def step_messages(obs: Observation, cot: CoT, trajectory: Trajectory, control: C
 class EpisodeWriter:
     """Writes one episode log atomically.
 
-    Use as a context manager: ``write_step`` once per step, then ``finish(result)``, which writes the
+    ``foxglove`` adds the Foxglove channels (:mod:`vladrivebench._logs.foxglove`); ``message_indexes=False``
+    leaves the message-index records out (a smaller file that Foxglove's indexed reader cannot play; for
+    measuring their cost). Use as a context manager: ``write_step`` once per step, then ``finish(result)``, which writes the
     ``result`` record, fsyncs and renames the partial file to ``path``. Leaving the block without
     ``finish`` (an exception) removes the partial file: the episode log then does not exist.
 
@@ -257,10 +267,12 @@ class EpisodeWriter:
     """
 
     def __init__(self, path: Path | str, meta: Mapping[str, Any], *, log_images: bool = False,
-                 chunk_size: int = 64 * 1024):
+                 foxglove: bool = True, message_indexes: bool = True, chunk_size: int = 64 * 1024):
         self.path = Path(path)
         self.meta = dict(meta)
         self.log_images = log_images
+        self.foxglove = foxglove
+        self.message_indexes = message_indexes
         self.chunk_size = chunk_size
         self.partial_path = self.path.with_name(f"{self.path.name}.{os.getpid()}{PARTIAL_SUFFIX}")
         self._file = None
@@ -277,15 +289,16 @@ class EpisodeWriter:
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._file = open(self.partial_path, "wb")  # noqa: SIM115 - closed in finish/__exit__
         _lock(self._file)  # held until closed: tells a resumed sweep this partial is still being written
-        # No message-index records: they are the only MCAP records without a CRC, so a flipped byte in one
-        # would go unnoticed; the reader reads chunks in order and needs no per-message index.
+        # Every index, message indexes included: players (Foxglove's indexed reader) need them. Message
+        # indexes carry no CRC of their own; the data-section CRC in the DataEnd record covers them.
+        index_types = IndexType.ALL if self.message_indexes else IndexType.ALL & ~IndexType.MESSAGE
         self._writer = Writer(self._file, chunk_size=self.chunk_size, compression=CompressionType.ZSTD,
-                              enable_data_crcs=True,
-                              index_types=IndexType.ATTACHMENT | IndexType.CHUNK | IndexType.METADATA)
+                              enable_data_crcs=True, index_types=index_types)
         self._writer.start(profile=PROFILE, library=f"vladrivebench/{__version__}")
         topics = STEP_CHANNELS + ((CAMERA_CHANNEL,) if self.log_images else ())
+        topics += foxglove.FOXGLOVE_CHANNELS if self.foxglove else ()
         for topic in topics:
-            schema = _SCHEMAS[topic]
+            schema = _SCHEMAS.get(topic) or foxglove.SCHEMAS[topic]
             schema_id = self._writer.register_schema(
                 name=schema["title"], encoding="jsonschema", data=json.dumps(schema).encode("utf-8")
             )
@@ -301,9 +314,12 @@ class EpisodeWriter:
         """Log one step: the observation's ego and ground truth, the CoT, trajectory, control and extras."""
         messages = {topic: _dumps(msg) for topic, msg in step_messages(obs, cot, trajectory, control,
                                                                        extras).items()}
+        time_ns = int(round(obs.time * _NS))
         if self.log_images:
             messages[CAMERA_CHANNEL] = _dumps(_camera_message(obs))
-        time_ns = int(round(obs.time * _NS))
+        if self.foxglove:
+            messages.update((topic, _dumps(msg)) for topic, msg in
+                            foxglove.step_messages(obs, cot, trajectory, time_ns).items())
         for topic, data in messages.items():
             self._writer.add_message(self._channels[topic], log_time=time_ns, data=data,
                                      publish_time=time_ns, sequence=obs.step)
@@ -330,10 +346,9 @@ class EpisodeWriter:
 
 
 def _camera_message(obs: Observation) -> dict[str, Any]:
-    seconds, nanos = divmod(int(round(obs.time * _NS)), _NS)
     return {
-        "timestamp": {"sec": seconds, "nsec": nanos},
-        "frame_id": "front_camera",
+        "timestamp": foxglove.stamp(int(round(obs.time * _NS))),
+        "frame_id": foxglove.CAMERA_FRAME,
         "format": "png",
         "data": base64.b64encode(encode_png(obs.image)).decode("ascii"),
     }
@@ -447,7 +462,7 @@ def read_episode(path: Path | str, *, recover: bool = False) -> Episode:
         complete = False
         if not recover:
             raise LogError(f"episode log {path}: incomplete (no 'result' record); re-run the episode")
-    return Episode(path, meta, _assemble_steps(by_step), result if complete else None, complete)
+    return Episode(path, meta, _assemble_steps(path, by_step), result if complete else None, complete)
 
 
 def _check_summary_crc(data: bytes, footer: Any) -> None:
@@ -473,17 +488,36 @@ def _collect_message(by_step: dict[int, dict[str, Any]], topics: dict[int, str],
         entry[_FIELD_OF_CHANNEL[topic]] = json.loads(message.data)
 
 
-def _assemble_steps(by_step: dict[int, dict[str, Any]]) -> list[StepRecord]:
+_DECODERS = {
+    "ego": decode.ego_from_json,
+    "ground_truth": decode.ground_truth_from_json,
+    "cot": decode.cot_from_json,
+    "trajectory": decode.trajectory_from_json,
+    "control": decode.control_from_json,
+}
+
+
+def _assemble_steps(path: Path, by_step: dict[int, dict[str, Any]]) -> list[StepRecord]:
     steps = []
     for step in sorted(by_step):
         entry = by_step[step]
         if not all(field in entry for field in _FIELD_OF_CHANNEL.values()):
             continue  # a step cut short by truncation
-        time = float(entry["ground_truth"].get("time", entry["time"]))
-        steps.append(StepRecord(step=step, time=time, command=entry.get("command", ""),
-                                image_png=entry.get("image_png"),
-                                **{f: entry[f] for f in _FIELD_OF_CHANNEL.values()}))
+        steps.append(_step_record(path, step, entry))
     return steps
+
+
+def _step_record(path: Path, step: int, entry: dict[str, Any]) -> StepRecord:
+    try:
+        records = {field: decoder(entry[field], field) for field, decoder in _DECODERS.items()}
+        extras = entry["extras"]
+        if not isinstance(extras, dict):
+            raise ValueError(f"extras is {type(extras).__name__}, expected a JSON object")
+    except ValueError as exc:
+        raise LogError(f"episode log {path}: step {step}: {exc}; expected the layout of log schema "
+                       f"version {SCHEMA_VERSION}") from None
+    return StepRecord(step=step, time=float(records["ground_truth"].time), command=entry.get("command", ""),
+                      image_png=entry.get("image_png"), extras=extras, **records)
 
 
 def _episode_meta(path: Path, metadata: Mapping[str, str]) -> dict:

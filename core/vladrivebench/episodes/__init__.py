@@ -7,6 +7,11 @@ fails raises :class:`EpisodeFailure` naming it. :func:`build_component` builds a
 (``build_component("controller", "pid")``, ``build_component("simulator", "kinematic", width=320)``) from the
 installed plugins, checking its options as the CLI does. Sweeps, logs and run directories are the
 engine's: run them through ``vdb run``.
+
+Reading logged episodes: :func:`read_episode` (one ``*.mcap``), :func:`load_episodes` / :func:`find_episodes`
+(a directory) give :class:`Episode` objects whose ``steps`` are :class:`StepRecord` — typed records
+(``step.ego.speed``, ``step.ground_truth.actors``, ``step.cot.text``, ``step.trajectory.xy``,
+``step.control.brake``), not dictionaries.
 """
 
 from vladrivebench._engine.runner import (
@@ -16,6 +21,7 @@ from vladrivebench._engine.runner import (
     own_cot_policy,
     run_episode,
 )
+from vladrivebench._logs.episodes import Episode, StepRecord, find_episodes, load_episodes, read_episode
 
 
 def build_component(kind: str, name: str, **options):
@@ -25,4 +31,5 @@ def build_component(kind: str, name: str, **options):
     return get_registry().create(kind, name, options)
 
 
-__all__ = ["EpisodeFailure", "EpisodeResult", "StepPolicy", "own_cot_policy", "run_episode", "build_component"]
+__all__ = ["EpisodeFailure", "EpisodeResult", "StepPolicy", "own_cot_policy", "run_episode", "build_component",
+           "read_episode", "load_episodes", "find_episodes", "Episode", "StepRecord"]
