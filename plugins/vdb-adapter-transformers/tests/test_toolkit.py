@@ -13,6 +13,9 @@ from vladrivebench import ConfigError, VdbError
 
 VOCAB, START, END, PAD = 40, 1, 2, 0
 
+# The toolkit uses the current transformers cache API: a deprecation warning is a failure.
+pytestmark = pytest.mark.filterwarnings("error::FutureWarning")
+
 
 @pytest.fixture(scope="module")
 def lm():
