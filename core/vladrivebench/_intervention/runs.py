@@ -209,7 +209,7 @@ class Splicer:
     def injection(self, resolver: StepResolver, name: str) -> Injection:
         """The condition's text at this step, checked against the model's format and token limit."""
         injection = resolver(name)
-        problem = injection_problem(injection, self.model.cot_format, self.count_tokens)
+        problem = injection_problem(injection, self.model.cot_format, self.count_tokens, allow_empty=True)
         if problem:
             raise ConditionError(f"condition {name!r} cannot be given to model {self.model_name!r}: its text "
                                  f"{problem}")
@@ -538,7 +538,7 @@ class InterventionRun:
         c = self.config
         job = EpisodeJob(path.stem, str(path), route, seed, c.model, c.simulator, c.controller,
                          {"intervention": c.to_json()}, dict(self.versions))
-        meta = episode_meta(job, model, sim)
+        meta = episode_meta(job, model, sim, self.registry)
         injected = isinstance(policy, InjectionPolicy)
         meta["intervention"] = {"mode": c.mode, "role": "injected" if injected else role,
                                 "condition": role if injected else None}
