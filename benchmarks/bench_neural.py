@@ -48,7 +48,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=5)
     args = parser.parse_args()
-    from vdb_model_neural import toolkit
+    from vdb_adapter_transformers import toolkit
     from vladrivebench._engine.registry import get_registry
 
     registry = get_registry()

@@ -53,7 +53,8 @@ def test_new_sweep_writes_manifest_episodes_and_failures(tmp_path):
     episode = read_episode(out / "episodes" / "echo__car__s1.mcap")
     assert episode.meta["config"] == manifest["config"] and episode.meta["versions"] == manifest["versions"]
     assert episode.meta["scenario"]["car_at"] == 30.0 and episode.seed == 1
-    assert episode.meta["simulator"] == {"name": "line", "options": {}, "dt": 0.1}
+    assert episode.meta["simulator"] == {"name": "line", "options": {}, "dt": 0.1,
+                                         "effective_options": {"fail_reset_for": "", "height": 4, "width": 8}}
     assert episode.meta["model"]["cot_format"]["kind"] == "sentence"
     assert episode.result == summary.results["echo__car__s1"]
 

@@ -58,6 +58,7 @@ _LAZY = {
     'VdbError': 'vladrivebench.errors',
     'BatchedModel': 'vladrivebench.protocols',
     'CoTExtras': 'vladrivebench.protocols',
+    'FidelityCheck': 'vladrivebench.protocols',
     'Condition': 'vladrivebench.protocols',
     'ConditionBatch': 'vladrivebench.protocols',
     'ConditionContext': 'vladrivebench.protocols',
@@ -94,7 +95,7 @@ __all__ = [
     "API_VERSION", "PROJECT_NAME", "PUBLIC_SUBPACKAGES", "__version__", "hookimpl",
     # protocols and optional model capabilities
     "Simulator", "VLAModel", "Controller", "Labeler", "Metric", "Executor", "Condition", "ConditionContext",
-    "Injection", "Paradigm", "BatchedModel", "TokenCounter", "CoTExtras", "ConditionBatch",
+    "Injection", "Paradigm", "BatchedModel", "TokenCounter", "CoTExtras", "ConditionBatch", "FidelityCheck",
     # records
     "ACTOR_KINDS", "LIGHT_COLOURS", "NAV_COMMANDS", "STATED_ACTIONS", "Actor", "Control", "CoT", "CoTFormat",
     "EgoState", "GroundTruth", "LabelInput", "Labels", "Observation", "Trajectory", "TrajectorySpec",

@@ -219,6 +219,28 @@ class ConditionBatch(Protocol):
         ...
 
 
+@runtime_checkable
+class FidelityCheck(Protocol):
+    """A model that can compare a spliced CoT's state with its own native computation.
+
+    Selfsplice proves that generating and splicing agree with each other; this proves that the spliced state
+    is what the model itself computes: one ordinary forward pass of the model over the prefix and the same
+    CoT text, with positions (e.g. multimodal RoPE and its deltas) computed by the model's own code. The
+    intervention gate calls it beside the selfsplice check and fails the step when either difference
+    exceeds ``fidelity_tolerance``.
+    """
+
+    #: The largest cache / trajectory difference (absolute, in the cache's units / metres) still counted as
+    #: equal, e.g. float32 rounding between one batched pass and one pass per token.
+    fidelity_tolerance: float
+
+    def fidelity_check(self, obs: Observation, cot: CoT, rng: np.random.Generator) -> tuple[float, float]:
+        """``(cache_diff, trajectory_diff)``: the largest absolute difference between the cache of ``cot``
+        (as produced by :meth:`VLAModel.splice_cot` or generation) and the cache of the native forward pass,
+        and the largest waypoint distance (m) between the trajectories decoded from each with ``rng``."""
+        ...
+
+
 # -- intervention conditions --------------------------------------------------------------------------------
 @dataclass
 class ConditionContext:

@@ -7,6 +7,7 @@ whose selfsplice gate fails prints one loud ``vdb: error: INVALID RUN …`` line
 from __future__ import annotations
 
 import json
+import shlex
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -215,7 +216,9 @@ def intervene_command(**opts: Any) -> None:
         click.echo(json.dumps(results, indent=2))
     else:
         click.echo(summary_text(results))
-        click.echo(f"\nlogs and results: {out} (intervention.json); `vdb report {out}` for plots")
+        report = shlex.quote(str(out / "report.html"))
+        click.echo(f"\nlogs and results: {out} (intervention.json); `vdb report {shlex.quote(str(out))} --out "
+                   f"{report}` for plots")
     message = gate_message(results)
     if message:
         raise InvalidRunError(message)

@@ -230,7 +230,7 @@ def run_job(job: EpisodeJob) -> EpisodeOutcome:
         failure = _describe_exception(exc)
         return outcome("failed", error=f"building the components raised {failure[0]}", details=failure[1])
     try:
-        meta = episode_meta(job, model, simulator)
+        meta = episode_meta(job, model, simulator, registry)
         with EpisodeWriter(job.path, meta, log_images=job.log_images) as writer:
             result = run_episode(model, simulator, controller, job.scenario, job.seed, writer=writer,
                                  model_name=job.model.name, simulator_name=job.simulator.name,
@@ -245,19 +245,28 @@ def run_job(job: EpisodeJob) -> EpisodeOutcome:
     return outcome("ok", result=result.to_json())
 
 
-def episode_meta(job: EpisodeJob, model: Any, simulator: Any) -> dict[str, Any]:
-    """The ``episode`` metadata record of a job's log."""
+def episode_meta(job: EpisodeJob, model: Any, simulator: Any, registry: Registry | None = None) -> dict[str, Any]:
+    """The ``episode`` metadata record of a job's log.
+
+    Given the ``registry``, each component also records ``effective_options``: every option its factory
+    takes, with the signature's default where the run did not set it.
+    """
     from dataclasses import asdict, is_dataclass
 
     def describe(obj: Any) -> Any:
         return asdict(obj) if is_dataclass(obj) and not isinstance(obj, type) else None
 
+    def spec_json(spec: ComponentSpec) -> dict[str, Any]:
+        if registry is None:
+            return spec.to_json()
+        return {**spec.to_json(), "effective_options": effective_options(registry, spec)}
+
     return {
         "episode_id": job.episode_id,
-        "model": {**job.model.to_json(), "cot_format": describe(getattr(model, "cot_format", None)),
+        "model": {**spec_json(job.model), "cot_format": describe(getattr(model, "cot_format", None)),
                   "trajectory_spec": describe(getattr(model, "trajectory_spec", None))},
-        "simulator": {**job.simulator.to_json(), "dt": float(simulator.dt)},
-        "controller": job.controller.to_json(),
+        "simulator": {**spec_json(job.simulator), "dt": float(simulator.dt)},
+        "controller": spec_json(job.controller),
         "scenario": _plain(job.scenario.to_json()),
         "seed": job.seed,
         "config": dict(job.config),
@@ -526,15 +535,58 @@ def _remove_stale_partials(directory: Path) -> None:
 
 # -- versions -----------------------------------------------------------------------------------------
 def collect_versions(registry: Registry, components: Sequence[ComponentSpec]) -> dict[str, str]:
-    """Python, the core, numpy, mcap and the distribution of every component that takes part."""
+    """Python, the core, numpy, mcap, the distribution of every component that takes part and the packages
+    those distributions require (e.g. torch, transformers and the adapter toolkit of a neural model; a
+    required library that itself builds on vladrivebench contributes its requirements too)."""
     versions = {"python": platform.python_version()}
     for dist in ("vladrivebench", "numpy", "mcap"):
         versions[dist] = _dist_version(dist)
     for spec in components:
         dist = registry.get(spec.kind, spec.name).distribution
         if dist and dist != "(local)":
-            versions[dist] = _dist_version(dist)
+            _add_with_requirements(dist, versions)
     return versions
+
+
+def _add_with_requirements(dist: str, versions: dict[str, str]) -> None:
+    versions[dist] = _dist_version(dist)
+    for requirement in _requirements(dist):
+        if requirement in versions or _dist_version(requirement) == "-":
+            continue
+        if "vladrivebench" in _requirements(requirement):
+            _add_with_requirements(requirement, versions)
+        else:
+            versions[requirement] = _dist_version(requirement)
+
+
+def _requirements(dist: str) -> list[str]:
+    """The names of ``dist``'s unconditional requirements (no extras, no environment markers)."""
+    try:
+        requires = metadata.requires(dist) or []
+    except metadata.PackageNotFoundError:
+        return []
+    names = []
+    for line in requires:
+        if ";" in line:
+            continue
+        name = re.split(r"[\s<>=!~\[(]", line.strip(), maxsplit=1)[0]
+        if name:
+            names.append(re.sub(r"[-_.]+", "-", name).lower())
+    return names
+
+
+def effective_options(registry: Registry, spec: ComponentSpec) -> dict[str, Any]:
+    """The options a component was built with: the run's, plus every default of its factory's signature."""
+    import inspect
+
+    factory = registry.get(spec.kind, spec.name).factory
+    try:
+        parameters = inspect.signature(factory).parameters.values()
+    except (TypeError, ValueError):
+        return _plain(dict(spec.options))
+    kinds = (inspect.Parameter.KEYWORD_ONLY, inspect.Parameter.POSITIONAL_OR_KEYWORD)
+    defaults = {p.name: p.default for p in parameters if p.kind in kinds and p.default is not p.empty}
+    return _plain({**defaults, **dict(spec.options)})
 
 
 def _dist_version(dist: str) -> str:

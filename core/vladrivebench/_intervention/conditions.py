@@ -493,8 +493,13 @@ class StepResolver:
         return self._memo[name]
 
 
-def injection_problem(injection: Any, cot_format: CoTFormat, count_tokens: Callable[[str], int]) -> str | None:
-    """Why a model of ``cot_format`` cannot take ``injection`` (shape, text, token limit), else ``None``."""
+def injection_problem(injection: Any, cot_format: CoTFormat, count_tokens: Callable[[str], int],
+                      allow_empty: bool = False) -> str | None:
+    """Why a model of ``cot_format`` cannot take ``injection`` (shape, text, token limit), else ``None``.
+
+    ``allow_empty`` accepts empty (or blank) texts: at a step they come from the model's own CoT, and an
+    empty own CoT is a valid CoT whose splice is the empty splice.
+    """
     if cot_format.is_slotted:
         if not isinstance(injection, Mapping):
             return f"must be one text per slot ({', '.join(cot_format.slots)}), got {type(injection).__name__}"
@@ -507,7 +512,7 @@ def injection_problem(injection: Any, cot_format: CoTFormat, count_tokens: Calla
         texts = [("text", injection)]
     for slot, text in texts:
         where = "" if slot == "text" else f"slot {slot!r} "
-        problem = text_problem(text)
+        problem = None if allow_empty and isinstance(text, str) and not text.strip() else text_problem(text)
         if problem:
             return f"{where}{problem}"
         if cot_format.max_tokens is not None:

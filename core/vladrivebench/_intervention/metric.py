@@ -166,10 +166,26 @@ def gate_table(results: Mapping[str, Any], suffix: str = "") -> Table:
     if gate.get("episode_mismatches"):
         notes.append("Selfsplice episodes that drove differently from their baseline: "
                      + ", ".join(gate["episode_mismatches"]) + ".")
+    columns = ("Status", "Steps failed", "Digest mismatches", "Max trajectory diff (m)")
+    if gate.get("fidelity_steps_checked"):
+        cells, columns = cells + _fidelity_cells(gate), columns + FIDELITY_COLUMNS
+        notes.append("Fidelity: at the same steps the spliced state is compared with the model's own native "
+                     "forward pass over prefix + the same text (positions computed by the model); a step fails "
+                     "when the largest cache or trajectory difference exceeds the model's tolerance.")
     return Table(f"intervention.gate{suffix}", f"{_validity(results)}Selfsplice gate — {model_text(results)}, "
-                 f"{results.get('mode')}", ("Run",), ("Status", "Steps failed", "Digest mismatches",
-                                                     "Max trajectory diff (m)"),
+                 f"{results.get('mode')}", ("Run",), columns,
                  (Row((", ".join(results.get("routes", [])),), cells),), notes=tuple(notes), metric="intervention")
+
+
+FIDELITY_COLUMNS = ("Fidelity steps failed", "Max fidelity cache diff", "Max fidelity trajectory diff (m)")
+
+
+def _fidelity_cells(gate: Mapping[str, Any]) -> tuple[Cell, ...]:
+    checked = int(gate["fidelity_steps_checked"])
+    failed, cache, traj = (float(gate.get(k, 0.0)) for k in
+                           ("fidelity_steps_failed", "max_fidelity_cache_diff", "max_fidelity_trajectory_diff"))
+    return (Cell(str(int(failed)), checked, failed), Cell(f"{cache:.3g}", checked, cache),
+            Cell(f"{traj:.3g}", checked, traj))
 
 
 # -- plain text (the CLI's summary) ------------------------------------------------------------------------

@@ -61,6 +61,7 @@ from vladrivebench._intervention.stats import (
     plan_seeds,
 )
 from vladrivebench.errors import ConfigError, LogError, VdbError
+from vladrivebench.protocols import FidelityCheck
 from vladrivebench.records import CoT, Observation, Trajectory
 
 DEFAULT_HORIZONS = (2.0, 3.0)
@@ -205,7 +206,7 @@ class Splicer:
     def check(self, name: str, injection: Injection) -> Injection:
         """``injection`` when the model's format and token limit can take it, else a one-line
         :class:`ConditionError` naming ``name`` (a condition, or whatever a paradigm calls its text)."""
-        problem = injection_problem(injection, self.model.cot_format, self.count_tokens)
+        problem = injection_problem(injection, self.model.cot_format, self.count_tokens, allow_empty=True)
         if problem:
             raise ConditionError(f"condition {name!r} cannot be given to model {self.model_name!r}: its text "
                                  f"{problem}")
@@ -282,14 +283,41 @@ def _one_line(exc: BaseException) -> str:
 
 
 def gate_record(model: Any, own: CoT, own_trajectory: Trajectory, spliced: CoT,
-                spliced_trajectory: Trajectory) -> dict[str, Any]:
-    """The selfsplice check of one step: digests equal and trajectories identical (difference in metres)."""
+                spliced_trajectory: Trajectory, obs: Observation | None = None,
+                seed: int | None = None) -> dict[str, Any]:
+    """The selfsplice check of one step: digests equal and trajectories identical (difference in metres).
+
+    Given ``obs`` and ``seed``, a model with the :class:`~vladrivebench.protocols.FidelityCheck` capability
+    also compares the spliced state with its own native forward pass (:func:`fidelity_fields`).
+    """
     own_digest, splice_digest = model.state_digest(own), model.state_digest(spliced)
     difference = trajectory_difference(own_trajectory, spliced_trajectory)
-    return {
+    record = {
         "digest_equal": own_digest == splice_digest,
         "trajectory_diff": difference if math.isfinite(difference) else 1e300,
         "ok": own_digest == splice_digest and difference == 0.0,
+    }
+    if obs is not None and seed is not None:
+        record.update(fidelity_fields(model, obs, spliced, seed))
+        record["ok"] = record["ok"] and record.get("fidelity_ok", True)
+    return record
+
+
+def fidelity_fields(model: Any, obs: Observation, spliced: CoT, seed: int) -> dict[str, Any]:
+    """The fidelity check of one step: the spliced state against the model's native computation.
+
+    Empty for models without :class:`~vladrivebench.protocols.FidelityCheck`; else the largest cache and
+    trajectory differences and whether both are within the model's ``fidelity_tolerance``.
+    """
+    if not isinstance(model, FidelityCheck):
+        return {}
+    cache_diff, trajectory_diff = (float(x) for x in model.fidelity_check(
+        obs, spliced, step_rng(seed, obs.step, "action", obs.scenario_id)))
+    tolerance = float(model.fidelity_tolerance)
+    return {
+        "fidelity_cache_diff": cache_diff if math.isfinite(cache_diff) else 1e300,
+        "fidelity_trajectory_diff": trajectory_diff if math.isfinite(trajectory_diff) else 1e300,
+        "fidelity_ok": cache_diff <= tolerance and trajectory_diff <= tolerance,
     }
 
 
@@ -327,7 +355,7 @@ class OpenLoopPolicy:
         resolver = sp.resolver(own)
         selfsplice = sp.splice(obs, SELFSPLICE, sp.injection(resolver, SELFSPLICE), seed)
         selfsplice_trajectory = sp.decode(obs, selfsplice, seed)
-        gate = gate_record(model, own, trajectory, selfsplice, selfsplice_trajectory)
+        gate = gate_record(model, own, trajectory, selfsplice, selfsplice_trajectory, obs, seed)
         trajectories = {"baseline": trajectory, SELFSPLICE: selfsplice_trajectory}
         trajectories.update(self._conditions(obs, resolver, seed))
         by_horizon = {horizon_key(h): {name: t.forward_displacement(h) for name, t in trajectories.items()}
@@ -397,7 +425,7 @@ class InjectionPolicy:
         record: dict[str, Any] = {"role": "injected", "condition": self.condition, "shadow": shadow,
                                   "displacement": displacements(trajectory, self.horizons)}
         if self.condition == SELFSPLICE:
-            record["gate"] = gate_record(model, own, own_trajectory, injected, trajectory)
+            record["gate"] = gate_record(model, own, own_trajectory, injected, trajectory, obs, seed)
         if self.controller is not None:
             self.controller.pending = (own_trajectory, shadow)
         return injected, trajectory, {"intervention": record}
@@ -553,7 +581,7 @@ class InterventionRun:
         c, route, seed = self.config, episode.route, episode.seed
         job = EpisodeJob(path.stem, str(path), route, seed, c.model, c.simulator, c.controller,
                          {"intervention": c.to_json()}, dict(self.versions))
-        meta = episode_meta(job, model, sim)
+        meta = episode_meta(job, model, sim, self.registry)
         meta["intervention"] = {"mode": c.mode, "role": episode.role, "condition": episode.condition}
         try:
             with EpisodeWriter(path, meta) as writer:
@@ -677,6 +705,10 @@ class GateTally:
     max_trajectory_diff: float = 0.0
     first_failure: dict[str, Any] | None = None
     episode_mismatches: list[str] = field(default_factory=list)
+    fidelity_steps: int = 0
+    fidelity_failed: int = 0
+    max_fidelity_cache_diff: float = 0.0
+    max_fidelity_trajectory_diff: float = 0.0
 
     def add(self, record: Mapping[str, Any] | None, where: dict[str, Any]) -> None:
         """Count one step's gate ``record`` (ignored when empty); ``where`` locates it for the report."""
@@ -687,11 +719,23 @@ class GateTally:
         self.max_trajectory_diff = max(self.max_trajectory_diff, diff)
         if not record.get("digest_equal", False):
             self.digest_mismatches += 1
+        self._add_fidelity(record)
         if not record.get("ok", False):
             self.failed += 1
             if self.first_failure is None:
                 self.first_failure = {**where, "trajectory_diff": diff,
                                       "digest_equal": bool(record.get("digest_equal"))}
+                if "fidelity_ok" in record:
+                    self.first_failure["fidelity_ok"] = bool(record["fidelity_ok"])
+
+    def _add_fidelity(self, record: Mapping[str, Any]) -> None:
+        if "fidelity_ok" not in record:
+            return
+        self.fidelity_steps += 1
+        self.fidelity_failed += 0 if record["fidelity_ok"] else 1
+        self.max_fidelity_cache_diff = max(self.max_fidelity_cache_diff, float(record["fidelity_cache_diff"]))
+        self.max_fidelity_trajectory_diff = max(self.max_fidelity_trajectory_diff,
+                                                float(record["fidelity_trajectory_diff"]))
 
     def add_episode(self, episode: Any, route: str, seed: int, role: str) -> None:
         """Count the gate record (``extras["intervention"]["gate"]``) of every step of ``episode``."""
@@ -707,7 +751,14 @@ class GateTally:
         return {"steps_checked": self.steps, "steps_failed": self.failed,
                 "digest_mismatches": self.digest_mismatches, "max_trajectory_diff": self.max_trajectory_diff,
                 "first_failure": self.first_failure, "episode_mismatches": self.episode_mismatches,
-                "valid": self.valid}
+                "valid": self.valid, **self._fidelity_json()}
+
+    def _fidelity_json(self) -> dict[str, Any]:
+        if not self.fidelity_steps:
+            return {}
+        return {"fidelity_steps_checked": self.fidelity_steps, "fidelity_steps_failed": self.fidelity_failed,
+                "max_fidelity_cache_diff": self.max_fidelity_cache_diff,
+                "max_fidelity_trajectory_diff": self.max_fidelity_trajectory_diff}
 
 
 def gate_message(results: Mapping[str, Any]) -> str | None:
@@ -724,6 +775,10 @@ def gate_message(results: Mapping[str, Any]) -> str | None:
              f"largest trajectory difference: {gate['max_trajectory_diff']:.3g} m"]
     if gate.get("episode_mismatches"):
         parts.append(f"selfsplice episodes differing from their baseline: {', '.join(gate['episode_mismatches'])}")
+    if gate.get("fidelity_steps_failed"):
+        parts.append(f"spliced state differs from the model's native forward pass at {gate['fidelity_steps_failed']} "
+                     f"of {gate['fidelity_steps_checked']} steps (largest cache difference "
+                     f"{gate['max_fidelity_cache_diff']:.3g}, trajectory {gate['max_fidelity_trajectory_diff']:.3g} m)")
     return "INVALID RUN: " + "; ".join(parts) + " — the splice pipeline is not artifact-free"
 
 

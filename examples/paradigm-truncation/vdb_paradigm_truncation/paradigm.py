@@ -128,7 +128,7 @@ class TruncationPolicy:
         sp = self.splicer
         own, trajectory = own_step(model, obs, seed)
         selfsplice = sp.splice(obs, SELFSPLICE, sp.injection(sp.resolver(own), SELFSPLICE), seed)
-        gate = gate_record(model, own, trajectory, selfsplice, sp.decode(obs, selfsplice, seed))
+        gate = gate_record(model, own, trajectory, selfsplice, sp.decode(obs, selfsplice, seed), obs, seed)
         slots = tuple(model.cot_format.slots) if model.cot_format.is_slotted else ()
         segments = [own.slots.get(s, "") for s in slots] if slots else [own.text]
         displacement = {horizon_key(h): {"own": trajectory.forward_displacement(h)} for h in self.horizons}

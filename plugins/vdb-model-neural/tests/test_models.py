@@ -10,7 +10,8 @@ import sys
 import numpy as np
 import pytest
 import torch
-from vdb_model_neural import plugin, toolkit
+from vdb_adapter_transformers import toolkit
+from vdb_model_neural import plugin
 from vdb_model_neural.common import WeightsError, bundle_paths
 from vdb_model_neural.kv_model import KVModel
 from vdb_model_neural.qa_model import QAModel

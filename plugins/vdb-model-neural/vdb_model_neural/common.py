@@ -303,7 +303,7 @@ class BundledModel:
     network_class: type
 
     def __init__(self, splice_mode: str = "sequential", weights_dir: str | None = None, threads: int = 1):
-        from .toolkit import SPLICE_MODES
+        from vdb_adapter_transformers.toolkit import SPLICE_MODES
 
         if splice_mode not in SPLICE_MODES:
             raise ConfigError(f"model {self.name!r} option splice_mode={splice_mode!r} is not known "

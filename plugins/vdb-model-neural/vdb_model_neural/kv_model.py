@@ -16,9 +16,9 @@ import numpy as np
 import torch
 from torch import nn
 from torch.nn import functional as F
+from vdb_adapter_transformers import toolkit
 from vladrivebench import ConfigError, CoT, CoTFormat, Observation, Trajectory, TrajectorySpec
 
-from . import toolkit
 from .common import (
     BundledModel,
     ModelConfig,

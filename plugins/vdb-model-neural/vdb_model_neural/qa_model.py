@@ -23,9 +23,9 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 from torch import nn
+from vdb_adapter_transformers import toolkit
 from vladrivebench import ConfigError, CoT, CoTFormat, Observation, Trajectory, TrajectorySpec
 
-from . import toolkit
 from .common import (
     BundledModel,
     ModelConfig,

@@ -85,7 +85,7 @@ def train_kv(dataset, seed: int, steps: int | None = None, threads: int = 2, log
         prefix = network.prefix_embeddings(images, ego[rows])
         embeds = torch.cat([prefix, network.lm.get_input_embeddings()(token_ids)], dim=1)
         mask = torch.cat([torch.ones(len(rows), prefix.shape[1], dtype=torch.bool), real], dim=1)
-        out = network.lm(inputs_embeds=embeds, attention_mask=mask.long(), past_key_values=DynamicCache(),
+        out = network.lm(inputs_embeds=embeds, attention_mask=mask.long(), cache=DynamicCache(),
                          use_cache=True)
         logits = out.logits[:, prefix.shape[1] : -1]
         lm_mask = real[:, 1:] & torch.from_numpy(~counterfactual)[:, None]
@@ -94,7 +94,7 @@ def train_kv(dataset, seed: int, steps: int | None = None, threads: int = 2, log
         x0 = torch.randn_like(x1)
         t = torch.sigmoid(torch.randn(len(rows)))  # logit-normal flow times
         xt = (1 - t)[:, None, None] * x0 + t[:, None, None] * x1
-        kv = [(layer.keys, layer.values) for layer in out.past_key_values.layers]
+        kv = [(layer.keys, layer.values) for layer in out.cache.layers]
         velocity = network.head(xt, t, kv, mask)
         # A vetoed "clear road" row weighs more: braking for a salient obstacle against the CoT is the one
         # place where vision must beat the text, and such rows are few.

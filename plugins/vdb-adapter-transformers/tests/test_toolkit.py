@@ -8,10 +8,13 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from transformers import LlamaConfig, LlamaForCausalLM
-from vdb_model_neural import toolkit
+from vdb_adapter_transformers import toolkit
 from vladrivebench import ConfigError, VdbError
 
 VOCAB, START, END, PAD = 40, 1, 2, 0
+
+# The toolkit uses the current transformers cache API: a deprecation warning is a failure.
+pytestmark = pytest.mark.filterwarnings("error::FutureWarning")
 
 
 @pytest.fixture(scope="module")
