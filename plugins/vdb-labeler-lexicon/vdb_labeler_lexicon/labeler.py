@@ -24,7 +24,7 @@ from vladrivebench import LabelInput, Labels
 
 from . import rules
 
-VERSION = "1.0"
+VERSION = "1.1"
 DECISION_SLOTS = ("decision", "action", "a3", "answer3", "q3")
 FORWARD_TOLERANCE_M = 4.0
 FORWARD_TOLERANCE_FRACTION = 0.2
@@ -122,7 +122,7 @@ class LexiconLabeler:
     @staticmethod
     def _contradictions(reading: rules.Reading) -> list[str]:
         found = []
-        current = [c for c in reading.claims if c.current]
+        current = [c for c in reading.claims if c.current and not c.purpose]
         stops = [c.phrase for c in current if rules.go_or_stop(c.action) == "stop" and not c.anticipatory]
         goes = [c for c in current if rules.go_or_stop(c.action) == "go"]
         demands = [f"{m.colour} light" for m in reading.mentions if m.colour == "red"]
