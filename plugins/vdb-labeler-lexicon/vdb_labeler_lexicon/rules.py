@@ -24,7 +24,8 @@ ENTITY_PATTERNS: tuple[tuple[str, str], ...] = (
     ("traffic_light", r"traffic\s+lights?|traffic\s+signals?|(?:red|green|yellow|amber)\s+lights?"
                       r"|(?<!turn\s)(?<!crossing\s)(?<!railroad\s)\bsignals?\b|\b(?:the|a)\s+lights?\b(?!\s+(?:rain|snow|fog|wind|traffic))"),
     ("stop_sign", r"stop\s+signs?|\b(?:the|a)\s+sign\b"),
-    ("hazard", r"speed\s+bumps?|traffic\s+cones?|\bcones?\b|construction|road\s*works?|barriers?|barricades?"
+    ("hazard", r"speed\s+bumps?|traffic\s+cones?|\bcones?\b"
+               r"|construction(?!\s+(?:vehicles?|trucks?|vans?|workers?))|road\s*works?|barriers?|barricades?"
                r"|debris|potholes?"),
     ("cyclist", r"cyclists?|bicyclists?|bicycles?|bikes?|bikers?|motorcyclists?|scooters?"),
     ("pedestrian", r"pedestrians?|persons?|people|\bman\b|\bmen\b|woman|women|child(?:ren)?|\bkids?\b"
@@ -359,7 +360,7 @@ _PURPOSE_BEFORE = re.compile(r"(?:\bin\s+order|\bso\s+as)?\s*\bto\s+$")
 _OTHER_SUBJECT = re.compile(r"(?:\b(?:it|they|object|objects)\b|\b(?:cars?|vehicles?|sedans?|suvs?|trucks?|vans?|bus|buses"
                             r"|pickups?|motorcycles?|cyclists?|pedestrians?|traffic|queue|someone|people|person)\b)"
                             r"(?:\s+(?:ahead|in\s+front|in\s+our\s+lane|alongside|that|which|who|is|are|was|were|has|have|had|also"
-                            r"|currently|now|still|and|gradually|slowly|suddenly|\w+ly))*\s+$")
+                            r"|currently|now|still|gradually|slowly|suddenly|\w+ly))*\s+$")
 _EGO_SUBJECT = re.compile(r"\b(?:ego(?:\s+(?:vehicle|car))?|we|i|our\s+(?:car|vehicle))\b(?:\s+\w+){0,3}\s+$")
 _PROGRESSIVE_HEADING = re.compile(r"\b(?:is|are)\s+$")
 
@@ -411,9 +412,23 @@ def _claims(text: str, slot: str | None) -> list[Claim]:
             found.append((start, Claim(action, phrase, slot, not (negated or sequential), anticipatory,
                                        bool(_HALT.search(phrase)), purpose)))
     found.sort(key=lambda pair: pair[0])
-    claims = [c for _, c in found]
+    found = [(start, c) for i, (start, c) in enumerate(found)
+             if not (c.phrase in ("continued", "continuing") and i + 1 < len(found)
+                     and found[i + 1][0] == start + len(c.phrase) + 1)]
+    claims = [_participle_sequence(text, start, c, i) for i, (start, c) in enumerate(found)]
     # a purpose ("stop to keep distance") belongs to the command before it; the first claim is no purpose
     return [c if i and c.purpose else _replace(c, purpose=False) for i, c in enumerate(claims)]
+
+
+_PARTICIPLE_CLAUSE = re.compile(r",\s*(?:then\s+)?\w+ing\b(?:\s+\w+){0,3}\s+$")
+
+
+def _participle_sequence(text: str, start: int, claim: Claim, index: int) -> Claim:
+    """``The ego vehicle proceeds along the road, coming to a halt at the light``: a participle clause after
+    a narrated command tells what happens next — a sequence, not a second current command."""
+    if index and claim.current and _PARTICIPLE_CLAUSE.search(text[:start]):
+        return _replace(claim, current=False)
+    return claim
 
 
 def _replace(record: Any, **changes: Any) -> Any:
