@@ -22,7 +22,10 @@ INFRASTRUCTURE = ("traffic_light", "stop_sign")
 ENTITY_PATTERNS: tuple[tuple[str, str], ...] = (
     # longer, more specific names first: their spans are taken before shorter ones can match inside them
     ("traffic_light", r"traffic\s+lights?|traffic\s+signals?|(?:red|green|yellow|amber)\s+lights?"
-                      r"|(?<!turn\s)(?<!crossing\s)(?<!railroad\s)\bsignals?\b|\b(?:the|a)\s+lights?\b(?!\s+(?:rain|snow|fog|wind|traffic))"),
+                      r"|(?<!turn\s)(?<!crossing\s)(?<!railroad\s)\bsignals?\b|\b(?:the|a)\s+lights?\b(?!\s+(?:rain|snow|fog|wind|traffic))"
+                      r"|\b(?:red|green|yellow|amber|the|a)\s+(?:(?:protected|left|right|straight|through|turn|left-turn"
+                      r"|right-turn|protected-left|protected-right|arrow|red|green|yellow|amber)\s+){1,2}(?:lights?|signals?)\b"
+                      r"|\b(?:the|a)\s+lamps?\b"),
     ("stop_sign", r"stop\s+signs?|\b(?:the|a)\s+sign\b"),
     ("hazard", r"speed\s+bumps?|traffic\s+cones?|\bcones?\b"
                r"|construction(?!\s+(?:vehicles?|trucks?|vans?|workers?))|road\s*works?|barriers?|barricades?"
@@ -62,15 +65,15 @@ ACTION_PATTERNS: tuple[tuple[str, str], ...] = (
                      r"|hold\s+(?:our\s+)?position|remain\s+stopped|stay\s+stopped|come\s+to\s+a\s+(?:complete\s+)?halt"),
     ("accelerating", r"accelerat(?:e|es|ing|ion)|speed(?:s|ing)?\s+up|resum(?:e|es|ing)"
                      r"|pick(?:s|ing)?\s+up\s+speed|increas(?:e|es|ing)\s+(?:the\s+|our\s+)?speed|go\s+faster"
-                     r"|build(?:s|ing)?\s+(?:up\s+)?speed|gain(?:s|ing)?\s+speed"),
+                     r"|build(?:s|ing)?\s+(?:up\s+)?speed|gain(?:s|ing)?\s+speed"
+                     r"|creep(?:s|ing)?\s+(?:forward|ahead)|mov(?:e|es|ing)\s+off|pull(?:s|ing)?\s+away"),
     ("maintaining", r"maintain(?:s|ing)?\s+(?:the\s+|your\s+|its\s+|our\s+|a\s+)?(?:current\s+|same\s+|constant\s+"
                     r"|steady\s+|present\s+)?(?:speed|pace|velocity)"
-                    r"|keep(?:s|ing)?\s+(?:the\s+|your\s+|our\s+|a\s+)?(?:current\s+|same\s+|constant\s+|steady\s+)?speed"
+                    r"|keep(?:s|ing)?\s+(?:the\s+|your\s+|our\s+|my\s+|its\s+|a\s+)?(?:current\s+|same\s+|constant\s+|steady\s+)?speed"
                     r"|keep\s+(?:going|driving|moving|cruising|rolling)|keep\s+and\b|continu(?:e|es|ing|ed)"
                     r"|proceed(?:s|ing)?|cruis(?:e|ing)\s+(?:on|along)|go(?:ing)?\s+(?:straight|through|ahead)"
                     r"|at\s+(?:the|a)\s+(?:current|same|constant|steady)\s+speed|carry\s+on|hold\s+(?:the\s+)?speed"
-                    r"|drive\s+through|driv(?:e|es|ing)\s+(?:fast|slowly|normally|with\s+(?:a\s+)?normal\s+speed)"
-                    r"|creep(?:s|ing)?\s+forward|mov(?:e|es|ing)\s+off|pull(?:s|ing)?\s+away"),
+                    r"|drive\s+through|driv(?:e|es|ing)\s+(?:fast|slowly|normally|with\s+(?:a\s+)?normal\s+speed)"),
 )
 """(stated action, regex), in the order their spans are taken (keep distance before maintaining)."""
 
@@ -96,6 +99,8 @@ _ACTION_NEGATION = re.compile(r"(?:\bnot|n't|\bno\s+need\s+to|\bwithout|\bnever|
                               r"\s+(?:\w+\s+){0,2}$")
 _SEQUENTIAL = re.compile(r"\b(?:then|afterwards|later|once|until|when|whenever|if|unless|after|before)\b")
 _LEADING_SUBORDINATE = re.compile(r"^\s*(?:after|once|when|if|before|until|unless)\b[^,]*,")
+_LEADING_CONDITION = re.compile(r"^\s*(?:if|unless|in\s+case|should)\b[^,]*,")
+_CONDITION_AFTER = re.compile(r"^[^.;:]*?\b(?:only\s+(?:if|when|once|after)|provided\s+(?:that\b)?|as\s+long\s+as)\b")
 _PREPARE = re.compile(r"\b(?:prepare|prepares|preparing|get\s+ready|getting\s+ready|ready)\s+to\s+$")
 _APPROACH = re.compile(r"\bstill\s+far\b|\bfar\s+away\b|\bfar\s+ahead\b|\bin\s+the\s+distance\b|\bfor\s+now\b"
                        r"|\bwhile\s+approaching\b|\bas\s+we\s+approach\b|\btoward\b|\btowards\b")
@@ -118,7 +123,8 @@ _COLOURS = {"red": "red", "green": "green", "yellow": "yellow", "amber": "yellow
 _COLOUR_BEFORE = re.compile(r"\b(red|green|yellow|amber)\s+(?:(?!the\b|a\b|and\b|or\b)[\w-]+\s+){0,2}(?:traffic\s+)?$")
 _COLOUR_INSIDE = re.compile(r"\b(red|green|yellow|amber)\b")
 _COLOUR_AFTER = re.compile(r"^(?:\s+(?:ahead|is|are|was|has|have|had|now|currently|still|showing|shows|showed|show"
-                           r"|turned|turning|turns|displaying|displays|lit|already|just|changed|changing|to|at|pos\d+"
+                           r"|turned|turning|turns|turn|displaying|displays|lit|already|just|changed|changing|changes|change|switches"
+                           r"|switched|to|at|pos\d+"
                            r"|in|front|of|us|the|for|our|lane|direction))*?\s+(red|green|yellow|amber)\b")
 _FUTURE = re.compile(r"\b(?:until|once|when|wait\s+for|waiting\s+for|after|before|if|unless)\b")
 
@@ -205,7 +211,23 @@ def _read_sentence(raw: str, slot: str | None, reading: Reading) -> None:
     subject_kind, subject_position = _orion_subject(text, positions)
     mentions = _mentions(text, slot, breaks, positions, subject_kind, subject_position)
     reading.mentions.extend(mentions)
+    _pronoun_colour(text, reading)
     reading.claims.extend(_claims(text, slot))
+
+
+_PRONOUN_COLOUR = re.compile(r"\bit\s+(?:is\s+|has\s+)?(?:now\s+|currently\s+|still\s+|just\s+)?(?:shows?|showing"
+                             r"|displays?|displaying|is|turned|turns|changed\s+to|changes\s+to)\s+(red|green|yellow|amber)\b")
+
+
+def _pronoun_colour(text: str, reading: Reading) -> None:
+    """``There is a traffic light ahead; it shows amber``: the pronoun's colour is the light's, when no light
+    has a colour yet (a future "until it turns green" is no statement)."""
+    match = _PRONOUN_COLOUR.search(text)
+    if not match or _FUTURE.search(text[: match.start()]) or any(m.colour for m in reading.mentions):
+        return
+    lights = [i for i, m in enumerate(reading.mentions) if m.kind == "traffic_light" and m.asserted]
+    if lights:
+        reading.mentions[lights[-1]] = _replace(reading.mentions[lights[-1]], colour=_COLOURS[match.group(1)])
 
 
 def _orion_subject(text: str, positions: list) -> tuple[str | None, tuple[float, float] | None]:
@@ -268,13 +290,23 @@ def _pronoun_motion(text: str, found: list[tuple[int, Mention]]) -> list[Mention
 
 
 def _is_ego(text: str, start: int, end: int) -> bool:
-    """``ego vehicle``, ``the vehicle to yield``, ``in front of the car``: the text speaks of the ego."""
+    """``ego vehicle``, ``the vehicle to yield``, ``in front of the car``, ``The car moves off as …``: the text
+    speaks of the ego."""
     before, after = text[:start], text[end:]
-    if _EGO_BEFORE.search(before):
+    if _EGO_BEFORE.search(before) or _narrated_ego(text, start, end):
         return True
     if _EGO_AFTER.match(after) and _BARE_ARTICLE.search(before):
         return True
     return bool(_EGO_FRONT.search(before)) and not _LOCATED.match(after)
+
+
+def _narrated_ego(text: str, start: int, end: int) -> bool:
+    """A sentence that opens with "the car" / "the vehicle" doing an ego command ("The car slows down because
+    …", BDD-X-style narration) narrates the ego in the third person."""
+    if text[start:end] not in ("car", "vehicle") or not _NARRATED_EGO.match(text[:start] + " "):
+        return False
+    rest = re.sub(r"^\s+(?:is\s+|then\s+|now\s+)?", "", text[end:])
+    return any(regex.match(rest) for _, regex in _ACTION_RES)
 
 
 def _negated_blocking(text: str) -> bool:
@@ -360,9 +392,20 @@ _PURPOSE_BEFORE = re.compile(r"(?:\bin\s+order|\bso\s+as)?\s*\bto\s+$")
 _OTHER_SUBJECT = re.compile(r"(?:\b(?:it|they|object|objects)\b|\b(?:cars?|vehicles?|sedans?|suvs?|trucks?|vans?|bus|buses"
                             r"|pickups?|motorcycles?|cyclists?|pedestrians?|traffic|queue|someone|people|person)\b)"
                             r"(?:\s+(?:ahead|in\s+front|in\s+our\s+lane|alongside|that|which|who|is|are|was|were|has|have|had|also"
-                            r"|currently|now|still|gradually|slowly|suddenly|\w+ly))*\s+$")
+                            r"|currently|now|still|gradually|slowly|suddenly|\w+ly"
+                            r"|(?:com(?:e|es|ing)|about|start(?:s|ing)|begin(?:s|ning)|going)\s+to(?:\s+a)?(?:\s+(?:full|complete))?))*\s+$")
 _EGO_SUBJECT = re.compile(r"\b(?:ego(?:\s+(?:vehicle|car))?|we|i|our\s+(?:car|vehicle))\b(?:\s+\w+){0,3}\s+$")
+_NARRATED_EGO = re.compile(r"^\s*(?:then\s+|now\s+)?the\s+(?:(?:car|vehicle)\s+(?:is\s+|then\s+|now\s+)?)?$")
 _PROGRESSIVE_HEADING = re.compile(r"\b(?:is|are)\s+$")
+
+
+def _condition_follows(text: str, end: int) -> bool:
+    """``proceed only if the crossing is clear``: a condition after the command, before the next command."""
+    match = _CONDITION_AFTER.match(text[end:])
+    if not match:
+        return False
+    between = text[end: end + match.start(0) + len(match.group(0))]
+    return not any(regex.search(between) for _, regex in _ACTION_RES)
 
 
 def _is_noun_stop(text: str, start: int, phrase: str) -> bool:
@@ -378,7 +421,7 @@ def _other_actor_subject(text: str, start: int, clause_start: int) -> bool:
     """The verb's subject is another road user (``the lead car ahead braking``, ``the object is stationary``,
     ``it is going ahead``), not the ego (``the ego vehicle should stop``) nor an imperative (``Stop``)."""
     before = text[clause_start:start]
-    if _EGO_SUBJECT.search(before):
+    if _EGO_SUBJECT.search(before) or _NARRATED_EGO.match(text[:start]):
         return False
     return bool(_OTHER_SUBJECT.search(before))
 
@@ -402,6 +445,7 @@ def _claims(text: str, slot: str | None) -> list[Claim]:
                 continue  # "the ego vehicle is going straight": its heading, not a speed
             before = text[:start]
             negated = bool(_ACTION_NEGATION.search(before))
+            conditional = bool(_LEADING_CONDITION.match(text)) or _condition_follows(text, end)
             if prior_end and start < prior_end.end():
                 sequential = True
             else:
@@ -409,7 +453,7 @@ def _claims(text: str, slot: str | None) -> list[Claim]:
                 sequential = bool(_SEQUENTIAL.search(text[scope_start:start]))
             purpose = bool(_PURPOSE_BEFORE.search(before)) and not _ACTION_NEGATION.search(before)
             anticipatory = bool(_PREPARE.search(before)) if action == "decelerating" else bool(_APPROACH.search(text))
-            found.append((start, Claim(action, phrase, slot, not (negated or sequential), anticipatory,
+            found.append((start, Claim(action, phrase, slot, not (negated or sequential or conditional), anticipatory,
                                        bool(_HALT.search(phrase)), purpose)))
     found.sort(key=lambda pair: pair[0])
     found = [(start, c) for i, (start, c) in enumerate(found)
