@@ -70,7 +70,7 @@ ACTION_PATTERNS: tuple[tuple[str, str], ...] = (
     ("maintaining", r"maintain(?:s|ing)?\s+(?:the\s+|your\s+|its\s+|our\s+|a\s+)?(?:current\s+|same\s+|constant\s+"
                     r"|steady\s+|present\s+)?(?:speed|pace|velocity)"
                     r"|keep(?:s|ing)?\s+(?:the\s+|your\s+|our\s+|my\s+|its\s+|a\s+)?(?:current\s+|same\s+|constant\s+|steady\s+)?speed"
-                    r"|keep\s+(?:going|driving|moving|cruising|rolling)|keep\s+and\b|continu(?:e|es|ing|ed)"
+                    r"|keep(?:s|ing)?\s+(?:going|driving|moving|cruising|rolling)|keep\s+and\b|continu(?:e|es|ing|ed)"
                     r"|proceed(?:s|ing)?|cruis(?:e|ing)\s+(?:on|along)|go(?:ing)?\s+(?:straight|through|ahead)"
                     r"|at\s+(?:the|a)\s+(?:current|same|constant|steady)\s+speed|carry\s+on|hold\s+(?:the\s+)?speed"
                     r"|drive\s+through|driv(?:e|es|ing)\s+(?:fast|slowly|normally|with\s+(?:a\s+)?normal\s+speed)"),
