@@ -17,7 +17,8 @@ from vladrivebench.labels import PROPERTIES, agreement, read_jsonl
 
 REAL = Path(__file__).resolve().parents[3] / "tests" / "data" / "real_gold"
 SEED = "vdb-real-gold-1"
-STYLES = ("alpamayo", "orion", "narration")
+STYLES = ("alpamayo", "orion", "narration", "qa")
+REPORTED_STYLES = ("alpamayo", "orion", "narration")  # "qa" (9 long model answers) is reported, not held to 0.9
 LABELER = LexiconLabeler()
 
 
@@ -57,7 +58,7 @@ def test_kappa_on_the_test_half_is_at_least_0_9_on_every_property(real_items):
         assert prop.kappa is not None and prop.kappa >= 0.9, (prop.prop, prop.kappa, prop.confusion)
 
 
-@pytest.mark.parametrize("style", STYLES)
+@pytest.mark.parametrize("style", REPORTED_STYLES)
 def test_each_style_of_the_test_half_agrees(real_items, style):
     report = half_agreement(real_items, "test", style)
     for prop in report.properties:

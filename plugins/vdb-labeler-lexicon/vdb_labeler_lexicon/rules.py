@@ -395,6 +395,7 @@ _OTHER_SUBJECT = re.compile(r"(?:\b(?:it|they|object|objects)\b|\b(?:cars?|vehic
                             r"|currently|now|still|gradually|slowly|suddenly|\w+ly"
                             r"|(?:com(?:e|es|ing)|about|start(?:s|ing)|begin(?:s|ning)|going)\s+to(?:\s+a)?(?:\s+(?:full|complete))?))*\s+$")
 _EGO_SUBJECT = re.compile(r"\b(?:ego(?:\s+(?:vehicle|car))?|we|i|our\s+(?:car|vehicle))\b(?:\s+\w+){0,3}\s+$")
+_EGO_OPENS = re.compile(r"^\s*(?:the\s+ego\b|we\b|i\b|our\s+(?:car|vehicle)\b)")
 _NARRATED_EGO = re.compile(r"^\s*(?:then\s+|now\s+)?the\s+(?:(?:car|vehicle)\s+(?:is\s+|then\s+|now\s+)?)?$")
 _PROGRESSIVE_HEADING = re.compile(r"\b(?:is|are)\s+$")
 
@@ -423,7 +424,10 @@ def _other_actor_subject(text: str, start: int, clause_start: int) -> bool:
     before = text[clause_start:start]
     if _EGO_SUBJECT.search(before) or _NARRATED_EGO.match(text[:start]):
         return False
-    return bool(_OTHER_SUBJECT.search(before))
+    subject = _OTHER_SUBJECT.search(before)
+    if subject and subject.group(0).split()[0] == "it" and _EGO_OPENS.match(text):
+        return False  # "The ego vehicle is steering left, and it is driving slowly": "it" is the ego
+    return bool(subject)
 
 
 def _claims(text: str, slot: str | None) -> list[Claim]:
