@@ -10,8 +10,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from statsmodels.stats.inter_rater import cohens_kappa
 from vladrivebench._analysis.labels import (
+    NO_GROUP,
     LabelStore,
     agreement,
+    agreement_by,
     category,
     cohen_kappa,
     content_key,
@@ -19,7 +21,9 @@ from vladrivebench._analysis.labels import (
     label_input,
     label_key,
     labels_from_json,
+    load_label_source,
     read_jsonl,
+    source_agreement,
     write_jsonl,
 )
 from vladrivebench.errors import ConfigError, LogError
@@ -198,3 +202,105 @@ def test_category_names():
     assert category("target_mentioned", Labels(target_mentioned=None)) == "n/a"
     assert category("hallucination", Labels(hallucination=True)) == "yes"
     assert category("light_colour", Labels()) == "none"
+
+
+# -- missing labels and agreement per group --------------------------------------------------------------------------
+FULL = {"stated_action": "decelerating", "target_mentioned": True, "mention_slot": None, "light_colour": None,
+        "hallucination": False, "contradiction": False}
+
+
+def write_label_file(path, rows):
+    path.write_text("".join(json.dumps(row) + "\n" for row in rows), encoding="utf-8")
+    return path
+
+
+def label_rows(n, labels, **fields):
+    return [{"id": f"i{i}", "text": "Stop for the pedestrian.", "labels": dict(labels), **fields} for i in range(n)]
+
+
+def test_empty_labels_are_missing_never_none_or_false(tmp_path):
+    gold = load_label_source(write_label_file(tmp_path / "gold.jsonl", label_rows(8, FULL)))
+    empty = load_label_source(write_label_file(tmp_path / "empty.jsonl", label_rows(8, {})))
+    report = source_agreement(gold, empty)
+    assert report.compared == 8
+    for prop in report.properties:
+        assert prop.n == 0 and prop.agreement is None and prop.kappa is None
+        assert prop.missing_a == 0 and prop.missing_b == 8 and "missing" in prop.note
+
+
+def test_one_missing_property_leaves_only_that_property_out(tmp_path):
+    partial = dict(FULL)
+    del partial["hallucination"]
+    rows = label_rows(6, FULL)
+    rows[2]["labels"] = partial
+    gold = load_label_source(write_label_file(tmp_path / "gold.jsonl", label_rows(6, FULL)))
+    other = load_label_source(write_label_file(tmp_path / "other.jsonl", rows))
+    by_prop = {p.prop: p for p in source_agreement(gold, other).properties}
+    assert by_prop["hallucination"].n == 5 and by_prop["hallucination"].missing_b == 1
+    assert by_prop["stated_action"].n == 6 and by_prop["stated_action"].missing_b == 0
+    assert by_prop["hallucination"].agreement == 1.0  # the missing one is not counted as "no"
+
+
+@settings(max_examples=50, deadline=None)
+@given(styles=st.lists(st.sampled_from(["alpamayo", "orion", "narration"]), min_size=1, max_size=20),
+       actions=st.lists(st.sampled_from(["decelerating", "maintaining"]), min_size=20, max_size=20))
+def test_agreement_by_group_is_agreement_on_the_group(tmp_path_factory, styles, actions):
+    folder = tmp_path_factory.mktemp("by")
+    gold_rows = [{"id": f"i{i}", "text": "x", "style": s, "labels": {**FULL, "stated_action": "decelerating"}}
+                 for i, s in enumerate(styles)]
+    other_rows = [{"id": f"i{i}", "text": "x", "labels": {**FULL, "stated_action": actions[i]}}
+                  for i in range(len(styles))]
+    gold = load_label_source(write_label_file(folder / "gold.jsonl", gold_rows))
+    other = load_label_source(write_label_file(folder / "other.jsonl", other_rows))
+    groups = agreement_by(gold, other, "style")
+    assert set(groups) == set(styles)
+    for style, report in groups.items():
+        ids = [f"i{i}" for i, s in enumerate(styles) if s == style]
+        expected = agreement({k: gold.labels[k] for k in ids}, {k: other.labels[k] for k in ids})
+        assert report.compared == len(ids)
+        assert [p.to_json() for p in report.properties] == [p.to_json() for p in expected.properties]
+
+
+def test_items_without_the_field_form_their_own_group(tmp_path):
+    rows = label_rows(3, FULL)
+    rows[0]["style"] = "orion"
+    a = load_label_source(write_label_file(tmp_path / "a.jsonl", rows))
+    assert set(agreement_by(a, a, "style")) == {"orion", NO_GROUP}
+
+
+def test_a_field_no_item_has_is_a_config_error(tmp_path):
+    a = load_label_source(write_label_file(tmp_path / "a.jsonl", label_rows(3, FULL, style="orion")))
+    with pytest.raises(ConfigError, match="--by colour: no item in common has a field 'colour'.*style"):
+        agreement_by(a, a, "colour")
+
+
+def run_agree(*args):
+    import subprocess
+    import sys
+
+    return subprocess.run([sys.executable, "-m", "vladrivebench._cli.main", "labels", "agree", *map(str, args)],
+                          capture_output=True, text=True, timeout=120)
+
+
+def test_cli_agree_by_prints_each_group_and_a_bad_field_is_one_line(tmp_path):
+    gold = write_label_file(tmp_path / "gold.jsonl", label_rows(4, FULL, style="alpamayo") +
+                            [{"id": "o", "text": "x", "style": "orion", "labels": FULL}])
+    result = run_agree(gold, gold, "--by", "style")
+    assert result.returncode == 0, result.stderr
+    assert "by style" in result.stdout and "alpamayo [4]" in result.stdout and "orion [1]" in result.stdout
+    data = json.loads(run_agree(gold, gold, "--by", "style", "--json").stdout)
+    assert set(data["groups"]) == {"alpamayo", "orion"} and data["by"] == "style"
+    for bad in (["--by", "nope"], ["--by", " "]):
+        result = run_agree(gold, gold, *bad)
+        assert result.returncode == 2 and result.stdout == ""
+        assert result.stderr.startswith("vdb: error: --by") and result.stderr.count("\n") == 1
+        assert "Traceback" not in result.stderr
+
+
+def test_cli_agree_with_every_labels_empty_is_an_error_not_75_percent(tmp_path):
+    gold = write_label_file(tmp_path / "gold.jsonl", label_rows(4, FULL))
+    empty = write_label_file(tmp_path / "empty.jsonl", label_rows(4, {}))
+    result = run_agree(gold, empty)
+    assert result.returncode == 2 and result.stdout == ""
+    assert result.stderr == f"vdb: error: {empty}: no compared item states any label (every \"labels\" object " \
+                            "lacks stated_action, target_mentioned, …); nothing to compare\n"

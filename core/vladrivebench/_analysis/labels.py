@@ -266,6 +266,7 @@ class JsonlItem:
     item: LabelInput
     labels: Labels | None = None
     extra: dict[str, Any] = field(default_factory=dict)
+    stated: tuple[str, ...] = ()  # the properties the line's "labels" object names (others are missing)
 
 
 _CONTEXT_KINDS = {"critical_kind": (str, type(None)), "light_state": (str, type(None)),
@@ -335,7 +336,9 @@ def _jsonl_item(data: Any, number: int, where: str, need_labels: bool) -> JsonlI
     elif need_labels:
         raise ConfigError(f"{where}: no \"labels\" object (a label file needs one on every line)")
     extra = {k: v for k, v in data.items() if k not in {"id", "text", "slots", "context", "labels"}}
-    return JsonlItem(str(ident), LabelInput(text=text, slots=slots, context=context, key=str(ident)), labels, extra)
+    stated = tuple(p for p in PROPERTIES if p in data["labels"]) if labels is not None else ()
+    return JsonlItem(str(ident), LabelInput(text=text, slots=slots, context=context, key=str(ident)), labels, extra,
+                     stated)
 
 
 def write_jsonl(path: Path | str, items: Sequence[JsonlItem], labels: Sequence[Labels]) -> None:
@@ -358,9 +361,28 @@ def write_jsonl(path: Path | str, items: Sequence[JsonlItem], labels: Sequence[L
         raise ConfigError(f"{path}: cannot write ({exc.strerror})") from None
 
 
+@dataclass(frozen=True)
+class LabelSource:
+    """The labels of one source by item, which properties each item's labels state, and its other fields.
+
+    ``present[id]`` holds the properties the item's ``labels`` object names: a property it leaves out is
+    *missing* (counted and reported by :func:`agreement`), never read as ``none`` or ``false``. ``fields[id]``
+    holds the item's other top-level fields of a JSONL file (``style``, ``source`` …) for grouping.
+    """
+
+    labels: dict[str, Labels]
+    present: dict[str, frozenset[str]]
+    fields: dict[str, dict[str, Any]]
+
+
 def read_label_source(path: Path | str) -> dict[str, Labels]:
     """Labels by item from a JSONL label file (``id`` → labels) or a label store of a run directory
     (``DIR/labels/NAME.jsonl``: content hash → the latest labels), so two labelers of one run compare too."""
+    return load_label_source(path).labels
+
+
+def load_label_source(path: Path | str) -> LabelSource:
+    """A :class:`LabelSource` from a JSONL label file or a run's label store (see :func:`read_label_source`)."""
     path = Path(path)
     try:
         first = next((line for line in path.open(encoding="utf-8") if line.strip()), "")
@@ -374,8 +396,11 @@ def read_label_source(path: Path | str) -> dict[str, Labels]:
         head = {}
     if isinstance(head, dict) and {"key", "content", "labeler", "labels"} <= set(head):
         store = LabelStore(path.parent.parent, path.stem)
-        return {content: stored.labels for content, stored in store.by_content.items()}
-    return {e.id: e.labels for e in read_jsonl(path, need_labels=True)}
+        labels = {content: stored.labels for content, stored in store.by_content.items()}
+        return LabelSource(labels, {k: frozenset(PROPERTIES) for k in labels}, {k: {} for k in labels})
+    entries = read_jsonl(path, need_labels=True)
+    return LabelSource({e.id: e.labels for e in entries},
+                       {e.id: frozenset(e.stated) for e in entries}, {e.id: dict(e.extra) for e in entries})
 
 
 # -- agreement ------------------------------------------------------------------------------------------
@@ -390,11 +415,13 @@ class PropertyAgreement:
     categories: tuple[str, ...]
     confusion: tuple[tuple[int, ...], ...]
     note: str = ""
+    missing_a: int = 0  # items compared whose labels in the first source do not state this property
+    missing_b: int = 0
 
     def to_json(self) -> dict[str, Any]:
         return {"property": self.prop, "n": self.n, "agreement": self.agreement, "kappa": self.kappa,
                 "categories": list(self.categories), "confusion": [list(r) for r in self.confusion],
-                "note": self.note}
+                "missing_in_a": self.missing_a, "missing_in_b": self.missing_b, "note": self.note}
 
 
 @dataclass(frozen=True)
@@ -447,21 +474,65 @@ def cohen_kappa(pairs: Sequence[tuple[str, str]]) -> PropertyAgreement:
 
 
 def agreement(a: Mapping[str, Labels], b: Mapping[str, Labels],
-              properties: Iterable[str] = PROPERTIES) -> AgreementReport:
-    """Cohen's κ per property between two label sources keyed by item id (unlabelled items left out)."""
+              properties: Iterable[str] = PROPERTIES, *,
+              present_a: Mapping[str, frozenset[str]] | None = None,
+              present_b: Mapping[str, frozenset[str]] | None = None) -> AgreementReport:
+    """Cohen's κ per property between two label sources keyed by item id (unlabelled items left out).
+
+    ``present_a`` / ``present_b`` give the properties each item's labels state (all, when not given); a
+    property missing on either side leaves that item out of that property and is counted as missing.
+    """
     common = [k for k in a if k in b]
     unlabelled = tuple(k for k in common if a[k].unlabelled or b[k].unlabelled)
     usable = [k for k in common if not (a[k].unlabelled or b[k].unlabelled)]
     results = []
     for prop in properties:
-        pairs = [(category(prop, a[k]), category(prop, b[k])) for k in usable]
+        in_a = [k for k in usable if present_a is None or prop in present_a.get(k, PROPERTIES)]
+        in_b = {k for k in usable if present_b is None or prop in present_b.get(k, PROPERTIES)}
+        pairs = [(category(prop, a[k]), category(prop, b[k])) for k in in_a if k in in_b]
         if prop == "mention_slot":  # only meaningful where someone named a slot
             pairs = [p for p in pairs if p != ("none", "none")]
         result = cohen_kappa(pairs)
+        missing_a, missing_b = len(usable) - len(in_a), len(usable) - len(in_b)
+        note = result.note
+        if missing_a or missing_b:
+            note = (note + "; " if note else "") + f"label missing in {missing_a} (first) / {missing_b} (second) items"
         results.append(PropertyAgreement(prop, result.n, result.agreement, result.kappa, result.categories,
-                                         result.confusion, result.note))
+                                         result.confusion, note, missing_a, missing_b))
     return AgreementReport(tuple(results), len(usable), tuple(k for k in a if k not in b),
                            tuple(k for k in b if k not in a), unlabelled)
+
+
+def source_agreement(a: LabelSource, b: LabelSource, properties: Iterable[str] = PROPERTIES,
+                     ids: Iterable[str] | None = None) -> AgreementReport:
+    """:func:`agreement` of two :class:`LabelSource` s (missing labels counted), optionally on some items."""
+    keep = None if ids is None else set(ids)
+    a_labels = {k: v for k, v in a.labels.items() if keep is None or k in keep}
+    b_labels = {k: v for k, v in b.labels.items() if keep is None or k in keep}
+    return agreement(a_labels, b_labels, properties, present_a=a.present, present_b=b.present)
+
+
+NO_GROUP = "(none)"
+"""The group of items that have no value for the ``--by`` field."""
+
+
+def agreement_by(a: LabelSource, b: LabelSource, by: str,
+                 properties: Iterable[str] = PROPERTIES) -> dict[str, AgreementReport]:
+    """κ per group of items, grouped by the value of their field ``by`` (``style``, ``source`` …) in the
+    first source, else the second; items without it form :data:`NO_GROUP`. A field that no item of either
+    source has is a :class:`ConfigError`."""
+    common = [k for k in a.labels if k in b.labels]
+    if not any(by in a.fields.get(k, {}) or by in b.fields.get(k, {}) for k in common):
+        known = sorted({f for src in (a, b) for k in common for f in src.fields.get(k, {})})
+        raise ConfigError(f"--by {by}: no item in common has a field {by!r} "
+                          f"(fields of the items: {', '.join(known) if known else 'none besides id, text, slots, context, labels'})")
+    groups: dict[str, list[str]] = {}
+    for k in common:
+        value = a.fields.get(k, {}).get(by, b.fields.get(k, {}).get(by))
+        name = NO_GROUP if value is None else value if isinstance(value, str) else canonical_json(value)
+        groups.setdefault(name, []).append(k)
+    props = tuple(properties)
+    return {name: source_agreement(a, b, props, ids) for name, ids in sorted(groups.items())}
 
 
 def label_counts(labels: Iterable[Labels], prop: str) -> Counter:

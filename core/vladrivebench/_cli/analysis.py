@@ -231,23 +231,45 @@ def labels_group() -> None:
 @labels_group.command("agree")
 @click.argument("first", type=click.Path(path_type=Path))
 @click.argument("second", type=click.Path(path_type=Path))
+@click.option("--by", "by", metavar="FIELD", default=None,
+              help="Also report κ per group of items with the same value of FIELD (a top-level field of the "
+                   "JSONL items, e.g. style or source).")
 @click.option("--json", "as_json", is_flag=True, help="Print the agreement as JSON.")
-def agree_command(first: Path, second: Path, as_json: bool) -> None:
+def agree_command(first: Path, second: Path, by: str | None, as_json: bool) -> None:
     """Cohen's κ per property between two label sources (e.g. a labeler against a gold file).
 
     Each is a JSONL label file (items matched by "id"; every line needs a "labels" object) or a run's
     label store DIR/labels/NAME.jsonl (items matched by CoT + context), so two labelers of one run compare.
+    A property an item's "labels" object leaves out is missing: counted and reported, never read as
+    none/false.
     """
-    from vladrivebench._analysis.labels import agreement, read_label_source
+    from vladrivebench._analysis.labels import agreement_by, load_label_source, source_agreement
     from vladrivebench._analysis.report import dumps
 
-    a, b = read_label_source(first), read_label_source(second)
-    report = agreement(a, b)
+    if by is not None and not by.strip():
+        raise ConfigError("--by: expected the name of a field of the JSONL items (e.g. style), got an empty string")
+    a, b = load_label_source(first), load_label_source(second)
+    report = source_agreement(a, b)
     if report.compared == 0:
         raise ConfigError(f"{first} and {second} have no labelled item in common (items are matched by \"id\")")
+    if all(p.n == 0 for p in report.properties):
+        side = first if all(p.missing_a for p in report.properties) else second
+        raise ConfigError(f"{side}: no compared item states any label (every \"labels\" object lacks "
+                          f"stated_action, target_mentioned, …); nothing to compare")
+    groups = agreement_by(a, b, by) if by is not None else {}
     if as_json:
-        click.echo(dumps(report.to_json()))
+        data = report.to_json()
+        if by is not None:
+            data["by"] = by
+            data["groups"] = {name: group.to_json() for name, group in groups.items()}
+        click.echo(dumps(data))
         return
+    _print_agreement(report, first, second)
+    if by is not None:
+        _print_groups(groups, by)
+
+
+def _print_agreement(report: Any, first: Path, second: Path) -> None:
     click.echo(f"{report.compared} items compared ({first.name} vs {second.name})")
     for label, ids in (("only in " + first.name, report.only_in_a), ("only in " + second.name, report.only_in_b),
                        ("unlabelled in either", report.unlabelled)):
@@ -262,6 +284,19 @@ def agree_command(first: Path, second: Path, as_json: bool) -> None:
             click.echo("  " + "A \\ B".ljust(width) + "".join(c.rjust(width) for c in prop.categories))
             for cat, row in zip(prop.categories, prop.confusion, strict=True):
                 click.echo("  " + cat.ljust(width) + "".join(str(v).rjust(width) for v in row))
+
+
+def _print_groups(groups: dict[str, Any], by: str) -> None:
+    """One line per group: κ (agreement, n) per property; missing labels counted per group."""
+    click.echo(f"\nby {by}: κ (agreement, n) per property")
+    for name, group in groups.items():
+        cells = []
+        for prop in group.properties:
+            kappa = "—" if prop.kappa is None else f"{prop.kappa:.2f}"
+            agree = "—" if prop.agreement is None else f"{100 * prop.agreement:.0f}%"
+            missing = prop.missing_a + prop.missing_b
+            cells.append(f"{prop.prop} {kappa} ({agree}, {prop.n}{f', {missing} missing' if missing else ''})")
+        click.echo(f"  {name} [{group.compared}]: " + "; ".join(cells))
 
 
 COMMANDS = [label_command, metrics_command, report_command, labels_group]

@@ -24,7 +24,7 @@ from vladrivebench import LabelInput, Labels
 
 from . import rules
 
-VERSION = "1.0"
+VERSION = "1.1"
 DECISION_SLOTS = ("decision", "action", "a3", "answer3", "q3")
 FORWARD_TOLERANCE_M = 4.0
 FORWARD_TOLERANCE_FRACTION = 0.2
@@ -122,7 +122,7 @@ class LexiconLabeler:
     @staticmethod
     def _contradictions(reading: rules.Reading) -> list[str]:
         found = []
-        current = [c for c in reading.claims if c.current]
+        current = [c for c in reading.claims if c.current and not c.purpose]
         stops = [c.phrase for c in current if rules.go_or_stop(c.action) == "stop" and not c.anticipatory]
         goes = [c for c in current if rules.go_or_stop(c.action) == "go"]
         demands = [f"{m.colour} light" for m in reading.mentions if m.colour == "red"]
@@ -203,12 +203,32 @@ def _actual_motion(actor: Mapping) -> str:
     return "moving" if float(actor.get("speed") or 0.0) > MOVING_SPEED else "stationary"
 
 
+_SPECIFIC_TYPES = ("truck", "bus", "van", "sedan", "suv", "pickup", "taxi", "lorr", "motorcycle", "car")
+
+
+def _vehicle_type(word: str) -> str | None:
+    """The vehicle type a word names ("trucks" → "truck"), or None for a generic word ("vehicle")."""
+    return next((t for t in _SPECIFIC_TYPES if word.startswith(t)), None)
+
+
+def _same_entity(a: rules.Mention, b: rules.Mention) -> bool:
+    """Two mentions can be one entity: no clearly different places, not one plural and one singular, nor two
+    different vehicle types ("the truck and bus are parked, while the car is driving" speaks of three)."""
+    if a.position is not None and b.position is not None and not _near(a.position, b.position):
+        return False
+    if _plural(a.word) != _plural(b.word):
+        return False  # "the parked vehicles" are several; "the car is driving" is one
+    type_a, type_b = _vehicle_type(a.word), _vehicle_type(b.word)
+    return type_a is None or type_b is None or type_a == type_b
+
+
+def _plural(word: str) -> bool:
+    return word in ("people", "men", "women", "children") or (
+        word.endswith("s") and not word.endswith(("bus", "ss")))
+
+
 def _motion_conflict(mentions: list[rules.Mention]) -> bool:
-    """One entity said to be both moving and stationary (mentions at clearly different places are apart)."""
+    """One entity said to be both moving and stationary."""
     moving = [m for m in mentions if m.motion == {"moving"}]
     still = [m for m in mentions if m.motion == {"stationary"}]
-    for a in moving:
-        for b in still:
-            if a.position is None or b.position is None or _near(a.position, (b.position[0], b.position[1])):
-                return True
-    return False
+    return any(_same_entity(a, b) for a in moving for b in still)
