@@ -12,7 +12,11 @@ Layout of a log (schema version ``"1"``, every message JSON-encoded, one message
 ``/extras``         whatever the step policy returned as extras (``{}`` by default)
 ``/command``        ``{"command"}``: the navigation command the model was given
 ``/camera``         optional (``log_images``): ``{"timestamp", "frame_id", "format": "png", "data"}``
-                    with base64 PNG data (foxglove ``CompressedImage`` layout)
+                    with base64 PNG data (foxglove ``CompressedImage`` layout): the observation's
+                    ``image`` (the rig's main camera), every step
+``/camera/<name>``  optional (``log_images``, rigs of two or more cameras): the same layout for each
+                    camera of ``Observation.cameras``, its newest frame, on the steps it is taken
+                    (``timestamp`` = the frame's time; ``frame_id`` = the camera's name)
 ==================  ===========================================================================
 
 Metadata records: ``episode`` (written first: ``{"schema_version", "json"}`` where ``json`` holds the
@@ -129,7 +133,8 @@ _SCHEMAS: dict[str, dict[str, Any]] = {
 # -- records ----------------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class StepRecord:
-    """One logged step, every field as the plain JSON the log holds."""
+    """One logged step, every field as the plain JSON the log holds; ``image_png`` is the ``/camera`` image
+    and ``camera_pngs`` the rig cameras' frames taken at this step, by camera name (logs with images)."""
 
     step: int
     time: float
@@ -141,6 +146,7 @@ class StepRecord:
     extras: dict
     command: str = ""
     image_png: bytes | None = None
+    camera_pngs: dict[str, bytes] = dataclasses.field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -302,12 +308,25 @@ class EpisodeWriter:
         messages = {topic: _dumps(msg) for topic, msg in step_messages(obs, cot, trajectory, control,
                                                                        extras).items()}
         if self.log_images:
-            messages[CAMERA_CHANNEL] = _dumps(_camera_message(obs))
+            for topic, frame_id, time, image in camera_images(obs):
+                messages[topic] = _dumps(_camera_message(time, frame_id, image))
         time_ns = int(round(obs.time * _NS))
         for topic, data in messages.items():
-            self._writer.add_message(self._channels[topic], log_time=time_ns, data=data,
+            self._writer.add_message(self._channel(topic), log_time=time_ns, data=data,
                                      publish_time=time_ns, sequence=obs.step)
         self.steps_written += 1
+
+    def _channel(self, topic: str) -> int:
+        """The channel id of ``topic``; a rig camera's channel is registered on its first message."""
+        if topic not in self._channels:
+            schema = _SCHEMAS[CAMERA_CHANNEL]
+            schema_id = self._writer.register_schema(
+                name=schema["title"], encoding="jsonschema", data=json.dumps(schema).encode("utf-8")
+            )
+            self._channels[topic] = self._writer.register_channel(
+                topic=topic, message_encoding="json", schema_id=schema_id
+            )
+        return self._channels[topic]
 
     def finish(self, result: Mapping[str, Any]) -> Path:
         """Write the result record and atomically publish the log at ``path``."""
@@ -329,13 +348,24 @@ class EpisodeWriter:
         self.partial_path.unlink(missing_ok=True)
 
 
-def _camera_message(obs: Observation) -> dict[str, Any]:
-    seconds, nanos = divmod(int(round(obs.time * _NS)), _NS)
+def camera_images(obs: Observation) -> list[tuple[str, str, float, np.ndarray]]:
+    """``(topic, frame_id, time, image)`` of every camera image to log for ``obs``: ``obs.image`` on
+    ``/camera``, and for a rig of two or more cameras each camera's newest frame on ``/camera/<name>`` on
+    the step it was taken (a rig below the step rate reuses frames; they are logged once)."""
+    images = [(CAMERA_CHANNEL, "front_camera", obs.time, obs.image)]
+    if len(obs.cameras) > 1:
+        images += [(f"{CAMERA_CHANNEL}/{name}", name, view.times[-1], view.latest)
+                   for name, view in obs.cameras.items() if view.times and view.times[-1] == obs.time]
+    return images
+
+
+def _camera_message(time: float, frame_id: str, image: np.ndarray) -> dict[str, Any]:
+    seconds, nanos = divmod(int(round(time * _NS)), _NS)
     return {
         "timestamp": {"sec": seconds, "nsec": nanos},
-        "frame_id": "front_camera",
+        "frame_id": frame_id,
         "format": "png",
-        "data": base64.b64encode(encode_png(obs.image)).decode("ascii"),
+        "data": base64.b64encode(encode_png(image)).decode("ascii"),
     }
 
 
@@ -467,6 +497,9 @@ def _collect_message(by_step: dict[int, dict[str, Any]], topics: dict[int, str],
     entry = by_step.setdefault(message.sequence, {"time": message.log_time / _NS})
     if topic == CAMERA_CHANNEL:
         entry["image_png"] = base64.b64decode(json.loads(message.data)["data"])
+    elif topic.startswith(CAMERA_CHANNEL + "/"):
+        name = topic[len(CAMERA_CHANNEL) + 1:]
+        entry.setdefault("camera_pngs", {})[name] = base64.b64decode(json.loads(message.data)["data"])
     elif topic == "/command":
         entry["command"] = str(json.loads(message.data).get("command", ""))
     elif topic in _FIELD_OF_CHANNEL:
@@ -481,7 +514,7 @@ def _assemble_steps(by_step: dict[int, dict[str, Any]]) -> list[StepRecord]:
             continue  # a step cut short by truncation
         time = float(entry["ground_truth"].get("time", entry["time"]))
         steps.append(StepRecord(step=step, time=time, command=entry.get("command", ""),
-                                image_png=entry.get("image_png"),
+                                image_png=entry.get("image_png"), camera_pngs=entry.get("camera_pngs", {}),
                                 **{f: entry[f] for f in _FIELD_OF_CHANNEL.values()}))
     return steps
 
