@@ -233,12 +233,13 @@ def test_pose_history_holds_the_last_poses_newest_last(road):
 def test_route_text_names_the_manoeuvre_and_its_distance():
     junction = build_road(scenario("t_junction", "left"))
     start, end = junction.junction_span
-    assert route_text(junction, "left", start - 12.4, 200.0) == "In 12 m, turn left at the junction."
-    assert route_text(junction, "left", start + 1.0, 200.0) == "At the junction: turn left."
-    assert route_text(junction, "straight", 0.0, 200.0).endswith("go straight at the junction.")
-    assert route_text(junction, "left", end + 1.0, end + 31.0) == "Follow the road for 30 m to the end of the route."
-    straight = build_road(scenario())
-    assert route_text(straight, "follow_lane", 10.0, 70.0) == "Follow the road for 60 m to the end of the route."
+    span = junction.junction_span
+    assert route_text("left", start - 12.4, 200.0, span) == "In 12 m, turn left at the junction."
+    assert route_text("right", start + 1.0, 200.0, span) == "At the junction: turn right."
+    assert route_text("straight", 0.0, 200.0, span).endswith("go straight at the junction.")
+    assert route_text("left", end + 1.0, end + 31.0, span) == "Follow the road for 30 m to the end of the route."
+    assert build_road(scenario()).junction_span is None
+    assert route_text("left", 10.0, 70.0) == "Follow the road for 60 m to the end of the route."
 
 
 # -- records --------------------------------------------------------------------------------------

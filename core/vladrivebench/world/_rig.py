@@ -186,13 +186,15 @@ def _view(spec: CameraSpec, window: deque) -> CameraView:
     return CameraView(spec, tuple(image for _, image in window), tuple(t for t, _ in window))
 
 
-def route_text(road: RoadGeometry, command: str, progress: float, route_length: float) -> str:
-    """A navigation instruction in words for the ego at ``progress`` metres along its route."""
+def route_text(command: str, progress: float, route_length: float,
+               junction_span: tuple[float, float] | None = None) -> str:
+    """A navigation instruction in words for the ego at ``progress`` metres along its route of
+    ``route_length`` m; ``junction_span`` is where the route crosses a junction (``RoadGeometry.junction_span``,
+    ``None`` without one), where ``command`` (``left``, ``right``, else straight on) applies."""
     remaining = max(route_length - progress, 0.0)
-    span = road.junction_span
-    if span is not None and progress < span[1]:
+    if junction_span is not None and progress < junction_span[1]:
         manoeuvre = {"left": "turn left", "right": "turn right"}.get(command, "go straight")
-        if progress < span[0]:
-            return f"In {span[0] - progress:.0f} m, {manoeuvre} at the junction."
+        if progress < junction_span[0]:
+            return f"In {junction_span[0] - progress:.0f} m, {manoeuvre} at the junction."
         return f"At the junction: {manoeuvre}."
     return f"Follow the road for {remaining:.0f} m to the end of the route."

@@ -133,5 +133,6 @@ class KinematicSimulator:
             scenario_id=self.scenario.id,
             cameras=cameras,
             pose_history=poses,
-            route_text=route_text(self.road, self.scenario.command, truth.route_progress, truth.route_length),
+            route_text=route_text(self.scenario.command, truth.route_progress, truth.route_length,
+                                  self.road.junction_span),
         )

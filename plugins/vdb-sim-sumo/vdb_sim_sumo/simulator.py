@@ -442,7 +442,8 @@ class SumoSimulator:
         truth = self.truth.observe(self.step_index, self.ego, actors, collisions)
         self._terminal = truth.terminal
         image, cameras, poses = self.rig.observe(self.step_index, truth.time, self.ego, self.road, truth.actors)
-        text = route_text(self.road, self.scenario.command, truth.route_progress, truth.route_length)
+        text = route_text(self.scenario.command, truth.route_progress, truth.route_length,
+                          getattr(self.road, "junction_span", None))  # a user's network has no known junction
         return Observation(step=self.step_index, time=truth.time, image=image, ego=self.ego,
                            command=self.scenario.command, ground_truth=truth, scenario_id=self.scenario.id,
                            cameras=cameras, pose_history=poses, route_text=text)
