@@ -174,7 +174,7 @@ def test_the_alpamayo_rig_renders_four_images_of_its_size(road):
     image, views, _ = recorder.observe(0, 0.0, ego_at_start(road), road, ())
     assert list(views) == list(ALPAMAYO_RIG.names)
     assert all(view.latest.shape == (320, 576, 3) and view.latest.dtype == np.uint8 for view in views.values())
-    assert image is views["front_wide"].latest and not image.flags.writeable
+    assert image is views["front_wide"].latest and not image.flags.writeable  # shared by 4 steps
     assert not np.array_equal(views["cross_left"].latest, views["cross_right"].latest)
 
 
@@ -212,6 +212,13 @@ def test_frames_are_rendered_only_on_their_steps_and_reused_between(road):
     assert views[2].frames[-1] is not views[1].frames[-1] and views[2].times == (0.0, 0.2)
     assert not np.array_equal(views[4].frames[-1], views[0].frames[-1])  # the ego moved 2 m
     assert views[5].times == (0.0, 0.2, 0.4) and views[5].frames[0] is views[0].frames[0]
+    assert not views[5].frames[0].flags.writeable
+
+
+def test_the_default_rig_gives_each_step_its_own_writable_image_as_before(road):
+    recorder = RigRecorder((dataclasses.replace(FRONT_RIG.cameras[0], width=16, height=8),))
+    images = [image for _, (image, _, _) in drive(recorder, road, 3)]
+    assert all(image.flags.writeable for image in images) and images[0] is not images[1]
 
 
 def test_pose_history_holds_the_last_poses_newest_last(road):

@@ -149,7 +149,7 @@ class CameraSpec:
 @dataclass(frozen=True)
 class CameraView:
     """A window of one camera's past frames: ``frames`` oldest → newest, each ``(height, width, 3)`` uint8
-    and read-only, taken at simulated ``times`` (seconds, increasing). Early in an episode the window
+    (read-only when shared with other steps' observations), taken at simulated ``times`` (seconds, increasing). Early in an episode the window
     holds fewer frames than requested; the newest frame may be older than the observation when the rig's
     frame rate is below the simulator's step rate."""
 

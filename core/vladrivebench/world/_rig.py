@@ -133,7 +133,8 @@ class RigRecorder:
 
     ``frames`` past frames per camera, one every ``stride`` steps (steps 0, stride, 2·stride, … of the
     episode; the views are reused unchanged on the steps between), and the last ``poses`` ego states
-    (one per step, the current included). With ``render`` False every frame is a black image.
+    (one per step, the current included). With ``render`` False every frame is a black image. Frames that
+    several steps' observations share (``frames`` > 1 or ``stride`` > 1) are read-only.
     Call :meth:`reset` at the start of each episode and :meth:`observe` once per step.
     """
 
@@ -178,7 +179,8 @@ class RigRecorder:
         if not self.render:
             return self.blanks[spec.name]
         image = self.cameras[spec.name].render(road, ego, actors)
-        image.flags.writeable = False  # frames are shared across steps
+        if self.frames > 1 or self.stride > 1:
+            image.flags.writeable = False  # the frame is shared by the observations of several steps
         return image
 
 
