@@ -73,6 +73,8 @@ _LAZY = {
     'VLAModel': 'vladrivebench.protocols',
     'ACTOR_KINDS': 'vladrivebench.records',
     'Actor': 'vladrivebench.records',
+    'CameraSpec': 'vladrivebench.records',
+    'CameraView': 'vladrivebench.records',
     'CoT': 'vladrivebench.records',
     'CoTFormat': 'vladrivebench.records',
     'Control': 'vladrivebench.records',
@@ -83,6 +85,7 @@ _LAZY = {
     'Labels': 'vladrivebench.records',
     'NAV_COMMANDS': 'vladrivebench.records',
     'Observation': 'vladrivebench.records',
+    'PoseHistory': 'vladrivebench.records',
     'STATED_ACTIONS': 'vladrivebench.records',
     'Trajectory': 'vladrivebench.records',
     'TrajectorySpec': 'vladrivebench.records',
@@ -99,6 +102,7 @@ __all__ = [
     # records
     "ACTOR_KINDS", "LIGHT_COLOURS", "NAV_COMMANDS", "STATED_ACTIONS", "Actor", "Control", "CoT", "CoTFormat",
     "EgoState", "GroundTruth", "LabelInput", "Labels", "Observation", "Trajectory", "TrajectorySpec",
+    "CameraSpec", "CameraView", "PoseHistory",
     "Scenario", "ActorSpec", "EgoSpec", "LightSpec", "RoadSpec", "StopSignSpec",
     # errors
     "VdbError", "ConfigError", "ScenarioError", "ModelOutputError", "LogError", "UnknownNameError",

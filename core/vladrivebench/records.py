@@ -8,6 +8,7 @@ Records are plain frozen dataclasses so that they pickle (process pools) and ser
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field, fields
 from typing import TYPE_CHECKING, Any
 
@@ -136,11 +137,92 @@ class GroundTruth(_LoggedKeys):
 
 
 @dataclass(frozen=True)
+class CameraSpec:
+    """One camera of a rig: its name, image size, pinhole intrinsics and mounting on the ego.
+
+    ``width`` × ``height`` pixels with horizontal field of view ``hfov_deg`` (square pixels, principal
+    point at the image centre). Mounting in the ego frame: ``x`` forward and ``y`` left of the ego's
+    centre, ``z`` above the ground (metres); ``yaw_deg`` turns the camera to the left (90 looks left),
+    ``pitch_deg`` tilts it down. Pixel ``(u, v)`` sees the ray through ``(u + 0.5, v + 0.5)``.
+    """
+
+    name: str
+    width: int
+    height: int
+    hfov_deg: float = 90.0
+    x: float = 0.8
+    y: float = 0.0
+    z: float = 1.6
+    yaw_deg: float = 0.0
+    pitch_deg: float = 0.0
+
+    @property
+    def focal(self) -> float:
+        """The focal length in pixels."""
+        return (self.width / 2) / math.tan(math.radians(self.hfov_deg) / 2)
+
+    @property
+    def intrinsics(self) -> tuple[tuple[float, float, float], ...]:
+        """The 3×3 pinhole matrix K: ``(u, v, 1) ∝ K @ (right, down, depth)`` in the camera frame."""
+        f = self.focal
+        return ((f, 0.0, self.width / 2), (0.0, f, self.height / 2), (0.0, 0.0, 1.0))
+
+    @property
+    def extrinsics(self) -> tuple[tuple[float, float, float, float], ...]:
+        """The 4×4 camera → ego transform. Camera frame: x right, y down, z along the optical axis (the
+        OpenCV convention); ego frame: x forward, y left, z up, origin on the ground under the centre."""
+        yaw, pitch = math.radians(self.yaw_deg), math.radians(self.pitch_deg)
+        cy, sy, cp, sp = math.cos(yaw), math.sin(yaw), math.cos(pitch), math.sin(pitch)
+        right = (sy, -cy, 0.0)
+        down = (-sp * cy, -sp * sy, -cp)
+        axis = (cp * cy, cp * sy, -sp)
+        origin = (self.x, self.y, self.z)
+        return tuple((right[i], down[i], axis[i], origin[i]) for i in range(3)) + ((0.0, 0.0, 0.0, 1.0),)
+
+
+@dataclass(frozen=True)
+class CameraView:
+    """A window of one camera's past frames: ``frames`` oldest → newest, each ``(height, width, 3)`` uint8
+    (read-only when shared with other steps' observations), taken at simulated ``times`` (seconds, increasing). Early in an episode the window
+    holds fewer frames than requested; the newest frame may be older than the observation when the rig's
+    frame rate is below the simulator's step rate."""
+
+    spec: CameraSpec
+    frames: tuple[np.ndarray, ...] = field(repr=False, compare=False)
+    times: tuple[float, ...] = ()
+
+    @property
+    def latest(self) -> np.ndarray:
+        """The newest frame."""
+        return self.frames[-1]
+
+
+@dataclass(frozen=True)
+class PoseHistory:
+    """The ego's past states, oldest → newest (the newest is the observation's own ``ego``), at ``times``."""
+
+    times: tuple[float, ...] = ()
+    states: tuple[EgoState, ...] = ()
+
+    def in_ego_frame(self) -> tuple[tuple[float, float, float], ...]:
+        """Every state as ``(x, y, yaw)`` in the ego frame of the newest state (the newest is ``(0, 0, 0)``)."""
+        if not self.states:
+            return ()
+        now = self.states[-1]
+        return tuple((*now.to_ego_frame(s.x, s.y), math.remainder(s.yaw - now.yaw, 2 * math.pi))
+                     for s in self.states)
+
+
+@dataclass(frozen=True)
 class Observation:
     """What a model is given at one step.
 
-    ``image`` is the front camera, ``(H, W, 3)`` uint8. ``ground_truth`` is privileged information: the
-    scripted reference model reads it as its "perception"; a real VLA adapter must not.
+    ``image`` is the front camera, ``(H, W, 3)`` uint8 (the newest frame of the rig's first camera).
+    ``cameras`` maps each camera's name to its :class:`CameraView` (empty when the simulator has no rig;
+    :meth:`camera_views` then makes a front view of ``image``). ``pose_history`` holds the ego's past
+    states and ``route_text`` a navigation instruction in words (``""`` if none). ``ground_truth`` is
+    privileged information: the scripted reference model reads it as its "perception"; a real VLA
+    adapter must not. Images never take part in comparisons or the repr.
     """
 
     step: int
@@ -150,6 +232,16 @@ class Observation:
     command: str
     ground_truth: GroundTruth
     scenario_id: str = ""
+    cameras: Mapping[str, CameraView] = field(default_factory=dict, repr=False, compare=False)
+    pose_history: PoseHistory = field(default_factory=PoseHistory, repr=False)
+    route_text: str = ""
+
+    def camera_views(self) -> Mapping[str, CameraView]:
+        """``cameras``, or, when it is empty, one view ``"front"`` holding ``image`` (90° field of view)."""
+        if self.cameras:
+            return self.cameras
+        height, width = self.image.shape[:2]
+        return {"front": CameraView(CameraSpec("front", int(width), int(height)), (self.image,), (self.time,))}
 
 
 @dataclass(frozen=True)

@@ -12,7 +12,11 @@ Layout of a log (schema version ``"1.1"``, every message JSON-encoded, one messa
 ``/extras``         whatever the step policy returned as extras (``{}`` by default)
 ``/command``        ``{"command"}``: the navigation command the model was given
 ``/camera``         optional (``log_images``): ``{"timestamp", "frame_id", "format": "png", "data"}``
-                    with base64 PNG data (``foxglove.CompressedImage``)
+                    with base64 PNG data (foxglove ``CompressedImage`` layout): the observation's
+                    ``image`` (the rig's main camera), every step
+``/camera/<name>``  optional (``log_images``, rigs of two or more cameras): the same layout for each
+                    camera of ``Observation.cameras``, its newest frame, on the steps it is taken
+                    (``timestamp`` = the frame's time; ``frame_id`` = the camera's name)
 ``/foxglove/*``     for players (``foxglove=True``, the default): frames, the scene, the trajectory
                     and the CoT as Foxglove messages (see :mod:`vladrivebench._logs.foxglove`)
 ==================  ===========================================================================
@@ -136,7 +140,8 @@ class StepRecord:
     ``ego``, ``ground_truth`` (actors as :class:`~vladrivebench.records.Actor` tuples), ``cot`` (text, slots,
     spliced; no model state), ``trajectory`` (float arrays) and ``control`` are the public records of
     :mod:`vladrivebench.records`; ``extras`` is the free-form JSON the step policy returned; ``command`` the
-    navigation command; ``image_png`` the logged camera PNG (``None`` unless the run logged images).
+    navigation command; ``image_png`` the logged ``/camera`` PNG and ``camera_pngs`` the rig cameras' frames
+    taken at this step, by camera name (``None`` / empty unless the run logged images).
     """
 
     step: int
@@ -149,6 +154,7 @@ class StepRecord:
     extras: dict
     command: str = ""
     image_png: bytes | None = None
+    camera_pngs: dict[str, bytes] = dataclasses.field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -316,14 +322,27 @@ class EpisodeWriter:
                                                                        extras).items()}
         time_ns = int(round(obs.time * _NS))
         if self.log_images:
-            messages[CAMERA_CHANNEL] = _dumps(_camera_message(obs))
+            for topic, frame_id, time, image in camera_images(obs):
+                messages[topic] = _dumps(_camera_message(time, frame_id, image))
         if self.foxglove:
             messages.update((topic, _dumps(msg)) for topic, msg in
                             foxglove.step_messages(obs, cot, trajectory, time_ns).items())
         for topic, data in messages.items():
-            self._writer.add_message(self._channels[topic], log_time=time_ns, data=data,
+            self._writer.add_message(self._channel(topic), log_time=time_ns, data=data,
                                      publish_time=time_ns, sequence=obs.step)
         self.steps_written += 1
+
+    def _channel(self, topic: str) -> int:
+        """The channel id of ``topic``; a rig camera's channel is registered on its first message."""
+        if topic not in self._channels:
+            schema = _SCHEMAS[CAMERA_CHANNEL]
+            schema_id = self._writer.register_schema(
+                name=schema["title"], encoding="jsonschema", data=json.dumps(schema).encode("utf-8")
+            )
+            self._channels[topic] = self._writer.register_channel(
+                topic=topic, message_encoding="json", schema_id=schema_id
+            )
+        return self._channels[topic]
 
     def finish(self, result: Mapping[str, Any]) -> Path:
         """Write the result record and atomically publish the log at ``path``."""
@@ -345,12 +364,23 @@ class EpisodeWriter:
         self.partial_path.unlink(missing_ok=True)
 
 
-def _camera_message(obs: Observation) -> dict[str, Any]:
+def camera_images(obs: Observation) -> list[tuple[str, str, float, np.ndarray]]:
+    """``(topic, frame_id, time, image)`` of every camera image to log for ``obs``: ``obs.image`` on
+    ``/camera``, and for a rig of two or more cameras each camera's newest frame on ``/camera/<name>`` on
+    the step it was taken (a rig below the step rate reuses frames; they are logged once)."""
+    images = [(CAMERA_CHANNEL, foxglove.CAMERA_FRAME, obs.time, obs.image)]
+    if len(obs.cameras) > 1:
+        images += [(f"{CAMERA_CHANNEL}/{name}", name, view.times[-1], view.latest)
+                   for name, view in obs.cameras.items() if view.times and view.times[-1] == obs.time]
+    return images
+
+
+def _camera_message(time: float, frame_id: str, image: np.ndarray) -> dict[str, Any]:
     return {
-        "timestamp": foxglove.stamp(int(round(obs.time * _NS))),
-        "frame_id": foxglove.CAMERA_FRAME,
+        "timestamp": foxglove.stamp(int(round(time * _NS))),
+        "frame_id": frame_id,
         "format": "png",
-        "data": base64.b64encode(encode_png(obs.image)).decode("ascii"),
+        "data": base64.b64encode(encode_png(image)).decode("ascii"),
     }
 
 
@@ -482,6 +512,9 @@ def _collect_message(by_step: dict[int, dict[str, Any]], topics: dict[int, str],
     entry = by_step.setdefault(message.sequence, {"time": message.log_time / _NS})
     if topic == CAMERA_CHANNEL:
         entry["image_png"] = base64.b64decode(json.loads(message.data)["data"])
+    elif topic.startswith(CAMERA_CHANNEL + "/"):
+        name = topic[len(CAMERA_CHANNEL) + 1:]
+        entry.setdefault("camera_pngs", {})[name] = base64.b64decode(json.loads(message.data)["data"])
     elif topic == "/command":
         entry["command"] = str(json.loads(message.data).get("command", ""))
     elif topic in _FIELD_OF_CHANNEL:
@@ -517,7 +550,8 @@ def _step_record(path: Path, step: int, entry: dict[str, Any]) -> StepRecord:
         raise LogError(f"episode log {path}: step {step}: {exc}; expected the layout of log schema "
                        f"version {SCHEMA_VERSION}") from None
     return StepRecord(step=step, time=float(records["ground_truth"].time), command=entry.get("command", ""),
-                      image_png=entry.get("image_png"), extras=extras, **records)
+                      image_png=entry.get("image_png"), camera_pngs=entry.get("camera_pngs", {}), extras=extras,
+                      **records)
 
 
 def _episode_meta(path: Path, metadata: Mapping[str, str]) -> dict:

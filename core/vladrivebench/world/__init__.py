@@ -3,9 +3,10 @@
 The public API for simulator plugins (``vdb-sim-kinematic`` and ``vdb-sim-sumo`` are built on it). A
 simulator reads a :class:`~vladrivebench.Scenario`, builds its road with :func:`build_road`, moves the ego
 with :func:`apply_control` (the kinematic bicycle model at :data:`DT`), places road users with
-:func:`scripted_users`, tracks the ground truth with :class:`TruthTracker` and renders the front camera with
-:class:`Camera`. Scenario files are read with :func:`load_scenario_file` / :func:`parse_scenario`, the
-installed suite with :func:`load_suite`.
+:func:`scripted_users`, tracks the ground truth with :class:`TruthTracker` and renders its cameras with
+:class:`Camera`: a rig of named cameras (:data:`RIG_PRESETS`, built from options by :func:`rig_from_options`
+and :func:`check_history_options`) whose frame and pose history a :class:`RigRecorder` keeps. Scenario files are read with
+:func:`load_scenario_file` / :func:`parse_scenario`, the installed suite with :func:`load_suite`.
 """
 
 from vladrivebench._scenarios.spec import load_scenario_file, load_suite, parse_scenario
@@ -33,6 +34,16 @@ from vladrivebench.world._motion import (
     option_error,
     scripted_users,
 )
+from vladrivebench.world._rig import (
+    ALPAMAYO_RIG,
+    FRONT_RIG,
+    RIG_PRESETS,
+    CameraRig,
+    RigRecorder,
+    check_history_options,
+    rig_from_options,
+    route_text,
+)
 from vladrivebench.world._roads import (
     GRASS,
     KERB,
@@ -58,6 +69,8 @@ __all__ = [
     "apply_control",
     "Box", "colliding", "overlap",
     "Camera", "count_pixels_differing",
+    "ALPAMAYO_RIG", "FRONT_RIG", "RIG_PRESETS", "CameraRig", "RigRecorder", "check_history_options",
+    "rig_from_options", "route_text",
     "WORLD_FEATURES", "ScriptedUser", "blank_image", "check_numbers", "check_supported", "check_view_options",
     "ego_at_start", "option_error", "scripted_users",
     "GRASS", "KERB", "MARK_WHITE", "MARK_YELLOW", "ROAD", "ROAD_BEHIND", "ROUTE_STEP", "SIDEWALK", "FeaturePose", "Prop", "RoadGeometry",

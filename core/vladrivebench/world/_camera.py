@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from vladrivebench.records import Actor, EgoState
+from vladrivebench.records import Actor, CameraSpec, EgoState
 from vladrivebench.world._roads import (
     GRASS,
     KERB,
@@ -88,19 +88,22 @@ _FACE_NORMALS = np.array([normal for _, normal in _FACES])
 
 
 class Camera:
-    """A front camera mounted on the ego: ``width`` × ``height`` pixels, horizontal field of view
-    ``hfov_deg``, at ``mount_height`` metres above the ground and ``mount_forward`` metres ahead of the
-    ego's centre, pitched down by ``pitch_deg``. :meth:`render` returns an ``(height, width, 3)`` uint8
-    image."""
+    """A camera mounted on the ego: ``width`` × ``height`` pixels, horizontal field of view ``hfov_deg``,
+    at ``mount_height`` metres above the ground, ``mount_forward`` metres ahead of the ego's centre and
+    ``mount_left`` to its left, turned left by ``yaw_deg`` and pitched down by ``pitch_deg`` (the defaults:
+    the front camera). :meth:`render` returns an ``(height, width, 3)`` uint8 image; :meth:`from_spec`
+    builds one from a :class:`~vladrivebench.records.CameraSpec`."""
 
     def __init__(self, width: int = 160, height: int = 80, hfov_deg: float = 90.0, mount_height: float = 1.6,
-                 mount_forward: float = 0.8, pitch_deg: float = 0.0, max_range: float = 250.0):
+                 mount_forward: float = 0.8, pitch_deg: float = 0.0, max_range: float = 250.0,
+                 mount_left: float = 0.0, yaw_deg: float = 0.0):
         if width < 8 or height < 8:
             raise ValueError(f"camera image must be at least 8×8 pixels, got {width}×{height}")
         if not 10.0 <= hfov_deg <= 170.0:
             raise ValueError(f"camera hfov_deg must be between 10 and 170, got {hfov_deg}")
         self.width, self.height = int(width), int(height)
         self.mount_height, self.mount_forward = float(mount_height), float(mount_forward)
+        self.mount_left, self.yaw = float(mount_left), math.radians(yaw_deg)
         self.focal = (self.width / 2) / math.tan(math.radians(hfov_deg) / 2)
         self.cx, self.cy = self.width / 2, self.height / 2
         self.pitch = math.radians(pitch_deg)
@@ -121,8 +124,12 @@ class Camera:
         dist = np.hypot(fwd, left)
         hits = np.isfinite(t) & (dist <= self.max_range) & (fwd > 0)
         self._ground_index = np.flatnonzero(hits)
-        self._ground_fwd = fwd.ravel()[self._ground_index] + self.mount_forward
-        self._ground_left = left.ravel()[self._ground_index]
+        fwd, left = fwd.ravel()[self._ground_index], left.ravel()[self._ground_index]
+        if self.yaw:  # camera-local (forward, left) → ego frame; the front camera keeps its exact values
+            cy, sy = math.cos(self.yaw), math.sin(self.yaw)
+            fwd, left = cy * fwd - sy * left, sy * fwd + cy * left
+        self._ground_fwd = fwd + self.mount_forward
+        self._ground_left = left + self.mount_left if self.mount_left else left
         haze = np.clip(dist.ravel()[self._ground_index] / self.max_range, 0.0, 1.0) ** 1.2 * 0.65
         # Each ground pixel's colour for every material, hazed by its distance: (pixels, materials, rgb).
         hazed = MATERIAL_COLOURS[None] * (1 - haze[:, None, None]) + HAZE * haze[:, None, None]
@@ -153,9 +160,15 @@ class Camera:
         self._draw_groups(image, ego, groups)
         return image
 
+    @classmethod
+    def from_spec(cls, spec: CameraSpec, max_range: float = 250.0) -> Camera:
+        """The camera a :class:`~vladrivebench.records.CameraSpec` describes."""
+        return cls(spec.width, spec.height, spec.hfov_deg, mount_height=spec.z, mount_forward=spec.x,
+                   pitch_deg=spec.pitch_deg, max_range=max_range, mount_left=spec.y, yaw_deg=spec.yaw_deg)
+
     def camera_position(self, ego: EgoState) -> np.ndarray:
         """World position (x, y, z) of the camera."""
-        x, y = ego.to_world_frame(self.mount_forward, 0.0)
+        x, y = ego.to_world_frame(self.mount_forward, self.mount_left)
         return np.array([x, y, self.mount_height])
 
     # -- drawing ------------------------------------------------------------------------------------
@@ -178,6 +191,11 @@ class Camera:
         dx, dy = points[..., 0] - ego.x, points[..., 1] - ego.y
         fwd = c * dx + s * dy - self.mount_forward
         left = -s * dx + c * dy
+        if self.mount_left:
+            left = left - self.mount_left
+        if self.yaw:  # ego frame → camera-local (forward, left)
+            cy, sy = math.cos(self.yaw), math.sin(self.yaw)
+            fwd, left = cy * fwd + sy * left, -sy * fwd + cy * left
         down = self.mount_height - points[..., 2]
         cp, sp = math.cos(self.pitch), math.sin(self.pitch)
         return np.stack([-left, -fwd * sp + down * cp, fwd * cp + down * sp], axis=-1)

@@ -5,13 +5,16 @@ from __future__ import annotations
 import vladrivebench
 
 
-def make_simulator(width: int = 160, height: int = 80, render: bool = True, hfov_deg: float = 90.0,
-                   camera_height: float = 1.6, pitch_deg: float = 0.0, position_jitter: float = 0.2):
+def make_simulator(width: int | None = None, height: int | None = None, render: bool = True,
+                   hfov_deg: float = 90.0, camera_height: float = 1.6, pitch_deg: float = 0.0,
+                   position_jitter: float = 0.2, rig: str = "front", cameras: str | None = None, frames: int = 1,
+                   frame_rate_hz: float = 10.0, poses: int = 16):
     """Build a :class:`~vdb_sim_kinematic.simulator.KinematicSimulator` (see its docstring for options)."""
     from .simulator import KinematicSimulator
 
     return KinematicSimulator(width=width, height=height, render=render, hfov_deg=hfov_deg,
-                              camera_height=camera_height, pitch_deg=pitch_deg, position_jitter=position_jitter)
+                              camera_height=camera_height, pitch_deg=pitch_deg, position_jitter=position_jitter,
+                              rig=rig, cameras=cameras, frames=frames, frame_rate_hz=frame_rate_hz, poses=poses)
 
 
 @vladrivebench.hookimpl

@@ -10,7 +10,8 @@ Each step (dt = 0.1 s):
 3. the ego's box is tested against every road user's box (separating axes): any overlap is a collision
    and ends the episode;
 4. the shared :class:`~vladrivebench.world._truth.TruthTracker` computes the ground truth, violations and
-   the terminal state; the camera renders the image.
+   the terminal state; the camera rig renders its images (on the steps of its frame rate) and keeps the
+   frame and pose history (:class:`vladrivebench.world.RigRecorder`).
 
 Seeds: the only thing a seed changes is the along-route start position of pedestrians and animals,
 shifted uniformly within ±``position_jitter`` metres (default 0.2 m, small enough to keep every crossing
@@ -24,15 +25,16 @@ from vladrivebench import Control, Observation, Scenario
 from vladrivebench import world as bicycle  # the bicycle model: DT, apply_control, EGO_LENGTH, EGO_WIDTH
 from vladrivebench.world import (
     WORLD_FEATURES,
-    Camera,
+    RigRecorder,
     RoadGeometry,
     TruthTracker,
-    blank_image,
     build_road,
+    check_history_options,
     check_supported,
-    check_view_options,
     colliding,
     ego_at_start,
+    rig_from_options,
+    route_text,
     scripted_users,
 )
 
@@ -43,20 +45,28 @@ SUPPORTED_FEATURES = WORLD_FEATURES
 class KinematicSimulator:
     """A numpy-only closed-loop world at 10 Hz.
 
-    Options: ``width`` × ``height`` of the camera image (pixels), ``render`` (False returns a blank image,
-    for fast runs of models that read only the ground truth), ``hfov_deg``, ``camera_height`` (m),
-    ``pitch_deg`` (downward tilt) and ``position_jitter`` (m, see the module docstring).
+    Camera options: ``rig`` (``front``, the default single front camera, or ``alpamayo``, four cameras:
+    :data:`vladrivebench.world.RIG_PRESETS`), ``cameras`` (some of the rig's cameras, comma-separated),
+    ``width`` × ``height`` of every camera image (pixels; default: the rig's own, 160×80 for ``front``),
+    ``frames`` (past frames kept per camera, 1–16) taken at ``frame_rate_hz`` (10 Hz divided by a whole
+    number), ``poses`` (past ego states kept, 0–100), ``render`` (False returns blank images, for fast
+    runs of models that read only the ground truth); for the ``front`` rig ``hfov_deg``,
+    ``camera_height`` (m) and ``pitch_deg`` (downward tilt). ``position_jitter`` (m, see the module
+    docstring).
     """
 
     dt = bicycle.DT
 
-    def __init__(self, width: int = 160, height: int = 80, render: bool = True, hfov_deg: float = 90.0,
-                 camera_height: float = 1.6, pitch_deg: float = 0.0, position_jitter: float = 0.2):
-        check_view_options("kinematic", locals())
+    def __init__(self, width: int | None = None, height: int | None = None, render: bool = True,
+                 hfov_deg: float = 90.0, camera_height: float = 1.6, pitch_deg: float = 0.0,
+                 position_jitter: float = 0.2, rig: str = "front", cameras: str | None = None, frames: int = 1,
+                 frame_rate_hz: float = 10.0, poses: int = 16):
+        specs = rig_from_options("kinematic", locals())
+        stride = check_history_options("kinematic", locals(), self.dt)
         self.render = render
         self.position_jitter = float(position_jitter)
-        self.camera = Camera(width, height, hfov_deg, mount_height=camera_height, pitch_deg=pitch_deg)
-        self._blank = blank_image(width, height)
+        self.rig = RigRecorder(specs, frames, stride, poses, render)
+        self.camera = self.rig.main
         self._roads: dict[tuple[str, str], RoadGeometry] = {}
         self.scenario: Scenario | None = None
         self._terminal: str | None = None
@@ -73,6 +83,7 @@ class KinematicSimulator:
         self.truth = TruthTracker(scenario, self.road, crossing)
         self.step_index = 0
         self._terminal = None
+        self.rig.reset()
         return self._observe(collisions=())
 
     def step(self, control: Control) -> Observation:
@@ -111,10 +122,7 @@ class KinematicSimulator:
         actors = self._actors()
         truth = self.truth.observe(self.step_index, self.ego, actors, collisions)
         self._terminal = truth.terminal
-        if self.render:
-            image = self.camera.render(self.road, self.ego, truth.actors)
-        else:
-            image = self._blank
+        image, cameras, poses = self.rig.observe(self.step_index, truth.time, self.ego, self.road, truth.actors)
         return Observation(
             step=self.step_index,
             time=truth.time,
@@ -123,5 +131,8 @@ class KinematicSimulator:
             command=self.scenario.command,
             ground_truth=truth,
             scenario_id=self.scenario.id,
+            cameras=cameras,
+            pose_history=poses,
+            route_text=route_text(self.scenario.command, truth.route_progress, truth.route_length,
+                                  self.road.junction_span),
         )
-

@@ -5,11 +5,13 @@ from __future__ import annotations
 import vladrivebench
 
 
-def make_simulator(width: int = 160, height: int = 80, render: bool = True, hfov_deg: float = 90.0,
-                   camera_height: float = 1.6, pitch_deg: float = 0.0, position_jitter: float = 0.2,
-                   background_vehicles_per_hour: float = 0.0, background_pedestrians_per_hour: float = 0.0,
-                   background_warmup_s: float = 30.0, pedestrians: str = "scripted", net_file: str | None = None,
-                   route: str | None = None, depart_pos: float = 0.0, cache_dir: str | None = None):
+def make_simulator(width: int | None = None, height: int | None = None, render: bool = True,
+                   hfov_deg: float = 90.0, camera_height: float = 1.6, pitch_deg: float = 0.0,
+                   position_jitter: float = 0.2, background_vehicles_per_hour: float = 0.0,
+                   background_pedestrians_per_hour: float = 0.0, background_warmup_s: float = 30.0,
+                   pedestrians: str = "scripted", net_file: str | None = None, route: str | None = None,
+                   depart_pos: float = 0.0, cache_dir: str | None = None, rig: str = "front",
+                   cameras: str | None = None, frames: int = 1, frame_rate_hz: float = 10.0, poses: int = 16):
     """Build a :class:`~vdb_sim_sumo.simulator.SumoSimulator` (see its docstring for the options)."""
     from .simulator import SumoSimulator
 
@@ -19,7 +21,8 @@ def make_simulator(width: int = 160, height: int = 80, render: bool = True, hfov
         background_vehicles_per_hour=background_vehicles_per_hour,
         background_pedestrians_per_hour=background_pedestrians_per_hour,
         background_warmup_s=background_warmup_s, pedestrians=pedestrians, net_file=net_file, route=route,
-        depart_pos=depart_pos, cache_dir=cache_dir,
+        depart_pos=depart_pos, cache_dir=cache_dir, rig=rig, cameras=cameras, frames=frames,
+        frame_rate_hz=frame_rate_hz, poses=poses,
     )
 
 

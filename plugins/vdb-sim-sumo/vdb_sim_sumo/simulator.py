@@ -36,21 +36,22 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from vladrivebench import Actor, ConfigError, Control, Observation, Scenario, episode_rng
+from vladrivebench import Actor, CameraSpec, ConfigError, Control, Observation, Scenario, episode_rng
 from vladrivebench import world as bicycle  # the bicycle model: DT, apply_control, EGO_LENGTH, EGO_WIDTH
 from vladrivebench.world import (
     WORLD_FEATURES,
-    Camera,
+    RigRecorder,
     RoadGeometry,
     TruthTracker,
-    blank_image,
     build_road,
+    check_history_options,
     check_numbers,
     check_supported,
-    check_view_options,
     colliding,
     ego_at_start,
     option_error,
+    rig_from_options,
+    route_text,
     scripted_users,
 )
 
@@ -108,8 +109,9 @@ class World:
 class SumoSimulator:
     """SUMO through libsumo at 10 Hz (see the module docstring).
 
-    Camera options as the kinematic simulator's: ``width`` × ``height`` pixels, ``render`` (False: a blank
-    image), ``hfov_deg``, ``camera_height`` (m), ``pitch_deg``; ``position_jitter`` (m) shifts pedestrians'
+    Camera options as the kinematic simulator's: ``rig`` (``front`` or ``alpamayo``), ``cameras``,
+    ``width`` × ``height`` pixels, ``frames`` at ``frame_rate_hz``, ``poses``, ``render`` (False: blank
+    images) and, for the ``front`` rig, ``hfov_deg``, ``camera_height`` (m), ``pitch_deg``; ``position_jitter`` (m) shifts pedestrians'
     start along the route per seed. SUMO options: ``background_vehicles_per_hour`` and
     ``background_pedestrians_per_hour`` (whole network), ``background_warmup_s`` (SUMO runs this long
     before the episode so the traffic is under way), ``pedestrians`` (``"scripted"`` or ``"sumo"``),
@@ -119,12 +121,14 @@ class SumoSimulator:
 
     dt = bicycle.DT
 
-    def __init__(self, width: int = 160, height: int = 80, render: bool = True, hfov_deg: float = 90.0,
-                 camera_height: float = 1.6, pitch_deg: float = 0.0, position_jitter: float = 0.2,
-                 background_vehicles_per_hour: float = 0.0, background_pedestrians_per_hour: float = 0.0,
-                 background_warmup_s: float = 30.0, pedestrians: str = "scripted", net_file: str | None = None,
-                 route: str | None = None, depart_pos: float = 0.0, cache_dir: str | None = None):
-        _check_options(locals())
+    def __init__(self, width: int | None = None, height: int | None = None, render: bool = True,
+                 hfov_deg: float = 90.0, camera_height: float = 1.6, pitch_deg: float = 0.0,
+                 position_jitter: float = 0.2, background_vehicles_per_hour: float = 0.0,
+                 background_pedestrians_per_hour: float = 0.0, background_warmup_s: float = 30.0,
+                 pedestrians: str = "scripted", net_file: str | None = None, route: str | None = None,
+                 depart_pos: float = 0.0, cache_dir: str | None = None, rig: str = "front",
+                 cameras: str | None = None, frames: int = 1, frame_rate_hz: float = 10.0, poses: int = 16):
+        specs, stride = _check_options(locals())
         self.render = render
         self.position_jitter = float(position_jitter)
         self.density = TrafficDensity(float(background_vehicles_per_hour), float(background_pedestrians_per_hour))
@@ -136,8 +140,8 @@ class SumoSimulator:
 
             self.user_net = UserNetwork.from_options(net_file, route, float(depart_pos))
         self.cache_dir = Path(cache_dir) if cache_dir else network.default_cache_dir()
-        self.camera = Camera(width, height, hfov_deg, mount_height=camera_height, pitch_deg=pitch_deg)
-        self._blank = blank_image(width, height)
+        self.rig = RigRecorder(specs, frames, stride, poses, render)
+        self.camera = self.rig.main
         self.netconvert = netconvert_binary()
         self.session = SumoSession(self)  # last: nothing after it may fail, or the process stays claimed
         self._release = weakref.finalize(self, self.session.close)
@@ -186,6 +190,7 @@ class SumoSimulator:
         self.truth = TruthTracker(scenario, self.road, crossing)
         self.step_index = 0
         self._terminal = None
+        self.rig.reset()
         # One step to insert the new road users, one with them placed: a person placed in the step it
         # departs would land short of its place.
         self._place()
@@ -436,9 +441,12 @@ class SumoSimulator:
         collisions = tuple(dict.fromkeys(colliding(self.ego, actors) + self.sumo_collisions()))
         truth = self.truth.observe(self.step_index, self.ego, actors, collisions)
         self._terminal = truth.terminal
-        image = self.camera.render(self.road, self.ego, truth.actors) if self.render else self._blank
+        image, cameras, poses = self.rig.observe(self.step_index, truth.time, self.ego, self.road, truth.actors)
+        text = route_text(self.scenario.command, truth.route_progress, truth.route_length,
+                          getattr(self.road, "junction_span", None))  # a user's network has no known junction
         return Observation(step=self.step_index, time=truth.time, image=image, ego=self.ego,
-                           command=self.scenario.command, ground_truth=truth, scenario_id=self.scenario.id)
+                           command=self.scenario.command, ground_truth=truth, scenario_id=self.scenario.id,
+                           cameras=cameras, pose_history=poses, route_text=text)
 
 
 def _sumo_angle(yaw: float) -> float:
@@ -466,12 +474,13 @@ def _cached_text(cache_dir: Path, text: str, suffix: str) -> Path:
     return target
 
 
-def _check_options(values: dict[str, Any]) -> None:
-    """One-line :class:`ConfigError` for the first bad option."""
+def _check_options(values: dict[str, Any]) -> tuple[tuple[CameraSpec, ...], int]:
+    """One-line :class:`ConfigError` for the first bad option; the rig's cameras and frame stride."""
     def fail(name: str, expected: str) -> ConfigError:
         return option_error("sumo", name, expected, values[name])
 
-    check_view_options("sumo", values)
+    specs = rig_from_options("sumo", values)
+    stride = check_history_options("sumo", values, bicycle.DT)
     check_numbers("sumo", values, (("background_vehicles_per_hour", 0.0, 20000.0),
                                    ("background_pedestrians_per_hour", 0.0, 20000.0),
                                    ("background_warmup_s", 0.0, 3600.0), ("depart_pos", 0.0, 1e6)))
@@ -486,3 +495,4 @@ def _check_options(values: dict[str, Any]) -> None:
         given = "net_file" if missing == "route" else "route"
         raise ConfigError(f"simulator 'sumo': option {given} needs option {missing} too "
                           "(a SUMO network and the ego's route through it: route=edge1,edge2,...)")
+    return specs, stride
