@@ -30,6 +30,7 @@ PUBLIC_SUBPACKAGES = (
     "vladrivebench.intervention",
     "vladrivebench.executors",
     "vladrivebench.episodes",
+    "vladrivebench.cli",
     "vladrivebench.testing",
 )
 """The public subpackages, one per kind of plugin author: simulators (world), metrics (tables and analysed
@@ -58,6 +59,7 @@ _LAZY = {
     'BatchedModel': 'vladrivebench.protocols',
     'CoTExtras': 'vladrivebench.protocols',
     'Condition': 'vladrivebench.protocols',
+    'ConditionBatch': 'vladrivebench.protocols',
     'ConditionContext': 'vladrivebench.protocols',
     'Controller': 'vladrivebench.protocols',
     'Executor': 'vladrivebench.protocols',
@@ -92,7 +94,7 @@ __all__ = [
     "API_VERSION", "PROJECT_NAME", "PUBLIC_SUBPACKAGES", "__version__", "hookimpl",
     # protocols and optional model capabilities
     "Simulator", "VLAModel", "Controller", "Labeler", "Metric", "Executor", "Condition", "ConditionContext",
-    "Injection", "Paradigm", "BatchedModel", "TokenCounter", "CoTExtras",
+    "Injection", "Paradigm", "BatchedModel", "TokenCounter", "CoTExtras", "ConditionBatch",
     # records
     "ACTOR_KINDS", "LIGHT_COLOURS", "NAV_COMMANDS", "STATED_ACTIONS", "Actor", "Control", "CoT", "CoTFormat",
     "EgoState", "GroundTruth", "LabelInput", "Labels", "Observation", "Trajectory", "TrajectorySpec",

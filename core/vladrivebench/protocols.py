@@ -206,6 +206,19 @@ class BatchedModel(Protocol):
         ...
 
 
+@runtime_checkable
+class ConditionBatch(Protocol):
+    """A model that decodes several injected texts for one observation in one pass over a shared prefix
+    (``vdb intervene --batch-conditions``). ``texts[i]`` is one injection (a string, or slot → text); the
+    trajectories come back in order, each as ``decode_action(obs, splice_cot(obs, texts[i], …), rng)`` would
+    give it up to floating point."""
+
+    def decode_batch(self, obs: Observation, texts: Sequence[Injection],
+                     rng: np.random.Generator) -> list[Trajectory]:
+        """One trajectory per injected text, in order."""
+        ...
+
+
 # -- intervention conditions --------------------------------------------------------------------------------
 @dataclass
 class ConditionContext:
