@@ -13,7 +13,7 @@ Fixtures:
 ``vdb_observations`` / ``vdb_observation``
     A factory ``vdb_observations(count=3, height=224, width=448, seed=0)`` of consecutive observations of
     a pedestrian approach whose camera images are large enough for a real vision encoder (rendered by the
-    installed ``kinematic`` simulator, else synthesised deterministically); and its first observation.
+    default simulator the installed plugins declare, else synthesised deterministically); and its first one.
 ``vdb_label_items``
     CoTs (sentences and slots, with and without a critical feature) with the context a labeler reads.
 ``vdb_episode_dir`` / ``vdb_dataset``
@@ -55,16 +55,17 @@ _OBSERVATIONS: dict[tuple, list] = {}
 
 @pytest.fixture(scope="session")
 def vdb_observations():
-    """A factory ``vdb_observations(count=3, *, height=224, width=448, seed=0, simulator="kinematic")`` of
-    consecutive :class:`~vladrivebench.Observation` s (rendered when the simulator is installed, else
-    synthesised); results are cached for the session, so treat them as read-only."""
-    from vladrivebench.testing.samples import RENDER_SIMULATOR, observations
+    """A factory ``vdb_observations(count=3, *, height=224, width=448, seed=0, render=True, simulator=None)``
+    of consecutive :class:`~vladrivebench.Observation` s (rendered by ``simulator``, by default the installed
+    default simulator, else synthesised); results are cached for the session, so treat them as read-only."""
+    from vladrivebench.testing.samples import observations
 
-    def make(count: int = 3, *, height: int = 224, width: int = 448, seed: int = 0,
-             simulator: str | None = RENDER_SIMULATOR) -> list:
-        key = (count, height, width, seed, simulator)
+    def make(count: int = 3, *, height: int = 224, width: int = 448, seed: int = 0, render: bool = True,
+             simulator: str | None = None) -> list:
+        key = (count, height, width, seed, render, simulator)
         if key not in _OBSERVATIONS:
-            _OBSERVATIONS[key] = observations(count, height=height, width=width, seed=seed, simulator=simulator)
+            _OBSERVATIONS[key] = observations(count, height=height, width=width, seed=seed, render=render,
+                                              simulator=simulator)
         return list(_OBSERVATIONS[key])
 
     return make

@@ -28,10 +28,8 @@ from vladrivebench.records import (
 )
 
 __all__ = ["observations", "synthetic_observation", "label_items", "write_episode_dir", "KeywordLabeler",
-           "RENDER_SIMULATOR", "SAMPLE_SCENARIO"]
+           "SAMPLE_SCENARIO"]
 
-RENDER_SIMULATOR = "kinematic"
-"""The simulator :func:`observations` renders with when it is registered (else it synthesises frames)."""
 SAMPLE_SCENARIO = "P.1"
 """The scenario :func:`observations` renders (a pedestrian in the lane); the suite's first one if missing."""
 
@@ -40,29 +38,37 @@ PEDESTRIAN_X = 30.0
 
 
 # -- observations -----------------------------------------------------------------------------------------
-def observations(count: int = 3, *, height: int = 224, width: int = 448, seed: int = 0,
-                 simulator: str | None = RENDER_SIMULATOR, scenario: str = SAMPLE_SCENARIO) -> list[Observation]:
+def observations(count: int = 3, *, height: int = 224, width: int = 448, seed: int = 0, render: bool = True,
+                 simulator: str | None = None, scenario: str = SAMPLE_SCENARIO) -> list[Observation]:
     """``count`` consecutive observations of an approach to a pedestrian, with ``height × width`` images.
 
-    Rendered by the registered simulator ``simulator`` (driving at a steady 6 m/s) when it is installed and
-    renders; synthesised by :func:`synthetic_observation` otherwise (``simulator=None`` forces that).
+    Rendered (driving at a steady throttle) by the registered simulator ``simulator`` — by default the one
+    the installed plugins declare as the default simulator (``register_defaults``) — when it is installed
+    and renders; synthesised by :func:`synthetic_observation` otherwise (``render=False`` forces that).
     """
     if count < 1 or height < 1 or width < 1:
         raise ValueError(f"observations needs count, height and width >= 1, got {count}, {height}, {width}")
-    rendered = _rendered(count, height, width, seed, simulator, scenario) if simulator else None
+    rendered = _rendered(count, height, width, seed, simulator, scenario) if render else None
     if rendered is not None:
         return rendered
     return [synthetic_observation(step, height=height, width=width, seed=seed) for step in range(count)]
 
 
-def _rendered(count: int, height: int, width: int, seed: int, name: str, scenario_id: str) -> list[Observation] | None:
-    """Frames from the registered simulator ``name``, or ``None`` (with a warning if it is installed but
-    fails) so that the caller synthesises them instead."""
+def _rendered(count: int, height: int, width: int, seed: int, name: str | None,
+              scenario_id: str) -> list[Observation] | None:
+    """Frames from the registered simulator ``name`` (``None``: the declared default), or ``None`` (with a
+    warning if it is installed but fails) so that the caller synthesises them instead."""
     import warnings
 
     from vladrivebench._engine.registry import Registry
+    from vladrivebench.errors import VdbError
 
     registry = Registry(entry_points=True)
+    if name is None:
+        try:
+            name = registry.default("simulator", "--sim").name
+        except VdbError:  # none declared, or a tie: nothing to render with
+            return None
     if name not in registry.names("simulator"):
         return None
     try:
