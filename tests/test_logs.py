@@ -428,12 +428,14 @@ def test_layout_names_channels_the_writer_writes():
 # -- @mcap/core under Node --------------------------------------------------------------------------
 @pytest.fixture(scope="session")
 def mcap_js(tmp_path_factory) -> Path:
-    """tests/js installed with `npm ci` once per package-lock into a cache directory."""
+    """tests/js installed with `npm ci` once per package-lock into a cache directory ($VDB_JS_CACHE or
+    ~/.cache/vladrivebench); skipped only when Node.js or npm is not installed."""
     npm, node = shutil.which("npm"), shutil.which("node")
     if npm is None or node is None:
         pytest.skip("npm/node not installed: the @mcap/core reader test needs Node.js and npm")
     lock = (JS_DIR / "package-lock.json").read_bytes()
-    cache = Path.home() / ".cache" / "vladrivebench" / f"js-{hashlib.sha256(lock).hexdigest()[:16]}"
+    root = Path(os.environ.get("VDB_JS_CACHE") or Path.home() / ".cache" / "vladrivebench")
+    cache = root / f"js-{hashlib.sha256(lock).hexdigest()[:16]}"
     if not (cache / "node_modules" / ".ok").exists():
         staging = tmp_path_factory.mktemp("npm")
         for name in ("package.json", "package-lock.json", "read_indexed.mjs"):
