@@ -396,7 +396,9 @@ def _append_ids(inputs: Mapping[str, torch.Tensor], token_ids: Sequence[int]) ->
 def native_state(model: torch.nn.Module, inputs: Mapping[str, torch.Tensor], token_ids: Sequence[int],
                  embeds: torch.Tensor | None = None) -> DecoderState:
     """The model's own computation of prefix + ``token_ids``: one ordinary forward pass, no position ids
-    passed, so the model computes every position (and its multimodal RoPE deltas) itself.
+    passed, so the model computes every position (and its multimodal RoPE deltas) itself. The returned
+    state carries the rope deltas the model stored during that pass, so whatever reads it next (an action
+    expert) sits at the positions the model itself would use.
 
     ``inputs`` are the prefix's processor outputs (:func:`encode_inputs`); for a decoder-only LM fed with
     embeddings give ``embeds`` (the prefix embeddings of :func:`encode_prefix`) and ``inputs`` empty: the
@@ -410,7 +412,19 @@ def native_state(model: torch.nn.Module, inputs: Mapping[str, torch.Tensor], tok
         return _state_from(out, full.shape[1], tuple(int(t) for t in token_ids), None)
     full = with_type_ids(model, _append_ids(inputs, token_ids))
     out = model(**full, cache=new_cache(model), use_cache=True, output_hidden_states=True)
-    return _state_from(out, int(full["input_ids"].shape[1]), tuple(int(t) for t in token_ids), None)
+    return _state_from(out, int(full["input_ids"].shape[1]), tuple(int(t) for t in token_ids),
+                       _models_own_deltas(model, full))
+
+
+def _models_own_deltas(model: torch.nn.Module, inputs: Mapping[str, torch.Tensor]) -> torch.Tensor | None:
+    """The rope deltas the model itself stored during its last forward pass over multimodal ``inputs``."""
+    if not any(k in inputs for k in GRID_KEYS):
+        return None
+    for owner in (model, getattr(model, "model", None)):
+        deltas = getattr(owner, "rope_deltas", None)
+        if isinstance(deltas, torch.Tensor):
+            return deltas.to(torch.long).view(-1, 1).clone()
+    return None
 
 
 def native_difference(model: torch.nn.Module, inputs: Mapping[str, torch.Tensor], state: DecoderState,
