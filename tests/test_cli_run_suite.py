@@ -96,4 +96,4 @@ def test_bad_option_of_a_real_model_is_one_line(tmp_path, capsys):
 
 def test_demo_refuses_a_model_it_has_no_setup_for(tmp_path, capsys):
     code, _, err = vdb(capsys, "demo", "--model", "pixel", "--out", tmp_path)
-    assert code == 2 and err.strip().count("\n") == 0 and "expected one of kv, scripted" in err
+    assert code == 2 and err.strip().count("\n") == 0 and "declares a demo (kv, scripted), got 'pixel'" in err

@@ -128,3 +128,22 @@ def test_disabling_a_plugin_by_name(plugin_path):
     )
     listing = {p["name"]: p for p in json.loads(result.stdout)}
     assert listing["brokenimport"]["status"] == "disabled"
+
+
+def test_every_plugin_and_example_declares_the_core_version_range_it_works_with():
+    import re
+    from pathlib import Path
+
+    import vladrivebench
+    from packaging.requirements import Requirement
+    from packaging.version import Version
+
+    root = Path(__file__).resolve().parents[1]
+    for pyproject in sorted([*root.glob("plugins/*/pyproject.toml"), *root.glob("examples/*/pyproject.toml")]):
+        text = pyproject.read_text(encoding="utf-8")
+        found = [Requirement(r) for r in re.findall(r'"(vladrivebench[^"]*)"', text)]
+        core = [r for r in found if r.name == "vladrivebench"]
+        assert core, f"{pyproject} does not depend on vladrivebench"
+        spec = core[0].specifier
+        assert any(s.operator == "<" for s in spec), f"{pyproject}: no upper bound on the core ({spec})"
+        assert Version(vladrivebench.__version__) in spec, f"{pyproject}: {spec} excludes the core's version"

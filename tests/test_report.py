@@ -68,7 +68,7 @@ def test_label_stores_once_and_relabelling_costs_nothing(run_dir, fx, capsys):
 
 def test_label_shows_progress_with_eta_on_stderr(run_dir, fx, capsys):
     code, out, err = vdb(fx, capsys, "label", str(run_dir), "--labeler", "fake", "--chunk", "50")
-    assert code == 0 and re.search(r"labelled \d+/\d+ \(100%\), [\d.]+/s, ETA 0:00", err)
+    assert code == 0 and re.search(r"labelled: (\d+)/\1 CoTs, done in \d+s", err)
 
 
 def test_a_killed_labelling_keeps_the_chunks_done(run_dir, fx, capsys):

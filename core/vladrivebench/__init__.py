@@ -30,6 +30,7 @@ PUBLIC_SUBPACKAGES = (
     "vladrivebench.intervention",
     "vladrivebench.executors",
     "vladrivebench.episodes",
+    "vladrivebench.cli",
     "vladrivebench.testing",
 )
 """The public subpackages, one per kind of plugin author: simulators (world), metrics (tables and analysed
@@ -59,6 +60,7 @@ _LAZY = {
     'CoTExtras': 'vladrivebench.protocols',
     'FidelityCheck': 'vladrivebench.protocols',
     'Condition': 'vladrivebench.protocols',
+    'ConditionBatch': 'vladrivebench.protocols',
     'ConditionContext': 'vladrivebench.protocols',
     'Controller': 'vladrivebench.protocols',
     'Executor': 'vladrivebench.protocols',
@@ -93,7 +95,7 @@ __all__ = [
     "API_VERSION", "PROJECT_NAME", "PUBLIC_SUBPACKAGES", "__version__", "hookimpl",
     # protocols and optional model capabilities
     "Simulator", "VLAModel", "Controller", "Labeler", "Metric", "Executor", "Condition", "ConditionContext",
-    "Injection", "Paradigm", "BatchedModel", "TokenCounter", "CoTExtras", "FidelityCheck",
+    "Injection", "Paradigm", "BatchedModel", "TokenCounter", "CoTExtras", "ConditionBatch", "FidelityCheck",
     # records
     "ACTOR_KINDS", "LIGHT_COLOURS", "NAV_COMMANDS", "STATED_ACTIONS", "Actor", "Control", "CoT", "CoTFormat",
     "EgoState", "GroundTruth", "LabelInput", "Labels", "Observation", "Trajectory", "TrajectorySpec",

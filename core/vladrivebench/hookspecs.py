@@ -113,6 +113,27 @@ def register_conditions(register: Register) -> None:
 
 
 @hookspec
+def register_defaults(register: Register) -> None:
+    """Declare which of your components should be used when the user names none.
+
+    ``register(kind, name, priority=0, **settings)``: ``kind`` is a component kind (``"simulator"`` for
+    ``--sim``, ``"labeler"`` for ``vdb label``) or ``"demo"`` (the model ``vdb demo`` runs; ``settings`` then
+    say how: ``controller``, ``sim_options``, ``model_options`` and a one-line ``about``). ``name`` must be
+    one of your own components of that kind (for ``"demo"``: one of your models).
+
+    The rule when several plugins declare a default of the same kind: the highest ``priority`` wins; two
+    declarations sharing the highest priority are refused with one line naming both, and the user chooses
+    on the command line. The core declares none of its own for these kinds — it names no plugin component.
+
+    Example::
+
+        @vladrivebench.hookimpl
+        def register_defaults(register):
+            register("simulator", "my-sim", priority=10)
+    """
+
+
+@hookspec
 def register_commands(cli: Any) -> None:
     """Add commands to the ``vdb`` command-line tool.
 

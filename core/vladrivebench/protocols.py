@@ -206,6 +206,18 @@ class BatchedModel(Protocol):
         ...
 
 
+@runtime_checkable
+class ConditionBatch(Protocol):
+    """A model that decodes several injected texts for one observation in one pass over a shared prefix
+    (``vdb intervene --batch-conditions``). ``texts[i]`` is one injection (a string, or slot → text); the
+    trajectories come back in order, each as ``decode_action(obs, splice_cot(obs, texts[i], …), rng)`` would
+    give it up to floating point."""
+
+    def decode_batch(self, obs: Observation, texts: Sequence[Injection],
+                     rng: np.random.Generator) -> list[Trajectory]:
+        """One trajectory per injected text, in order."""
+        ...
+
 
 @runtime_checkable
 class FidelityCheck(Protocol):
@@ -227,6 +239,7 @@ class FidelityCheck(Protocol):
         (as produced by :meth:`VLAModel.splice_cot` or generation) and the cache of the native forward pass,
         and the largest waypoint distance (m) between the trajectories decoded from each with ``rng``."""
         ...
+
 
 # -- intervention conditions --------------------------------------------------------------------------------
 @dataclass

@@ -34,7 +34,6 @@ from vladrivebench.records import LabelInput, Labels
 
 ZONES = ("far", "med", "near", "past")
 """Distance zones along the route to the critical feature: far > 20 m, med 10–20 m, near < 10 m, past < 0."""
-DEFAULT_LABELER = "lexicon"
 
 
 def distance_zone(distance: float | None) -> str | None:

@@ -2,14 +2,13 @@
 
 from __future__ import annotations
 
-import sys
-import time
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import click
 
+from vladrivebench._cli.progress import Progress
 from vladrivebench.errors import ConfigError, VdbError
 
 DEFAULT_CHUNK = 64
@@ -30,23 +29,14 @@ def _labeler(name: str, options: dict[str, Any], backends: str | None) -> Any:
     return labeler
 
 
-class Progress:
-    """``labelled done/total (pct), rate/s, ETA`` on stderr, at most every ``interval`` seconds."""
+def _default_labeler() -> str:
+    from vladrivebench._engine.registry import get_registry
 
-    def __init__(self, total: int, interval: float = 1.0, stream: Any = None):
-        self.total, self.interval = total, interval
-        self.stream = stream or sys.stderr
-        self.start = self.last = time.monotonic()
+    return get_registry().default("labeler", "--labeler").name
 
-    def __call__(self, done: int, final: bool = False) -> None:
-        now = time.monotonic()
-        if not final and now - self.last < self.interval:
-            return
-        self.last = now
-        rate = done / max(now - self.start, 1e-9)
-        eta = (self.total - done) / rate if rate > 0 else 0.0
-        print(f"labelled {done}/{self.total} ({100 * done / max(self.total, 1):.0f}%), {rate:.1f}/s, "
-              f"ETA {int(eta // 60)}:{int(eta % 60):02d}", file=self.stream, flush=True)
+
+def _label_progress(total: int) -> Progress:
+    return Progress("labelled", total, unit="CoTs", close=True, interval=1.0)
 
 
 def label_in_chunks(labeler: Any, name: str, items: Sequence[Any], on_chunk: Any, chunk: int,
@@ -64,16 +54,15 @@ def label_in_chunks(labeler: Any, name: str, items: Sequence[Any], on_chunk: Any
         on_chunk(batch, results)
         done += len(batch)
         if progress:
-            progress(done)
-    if progress and items:
-        progress(done, final=True)
+            progress.advance(count=len(batch))
     return done
 
 
 # -- vdb label --------------------------------------------------------------------------------------------
 @click.command("label")
 @click.argument("directory", required=False, type=click.Path(path_type=Path))
-@click.option("--labeler", "labeler_name", default="lexicon", show_default=True, help="Registered labeler.")
+@click.option("--labeler", "labeler_name", default=None,
+              help="Registered labeler (default: the one a labeler plugin declares, e.g. lexicon).")
 @click.option("--labeler-opt", "labeler_opts", multiple=True, metavar="KEY=VALUE", help="Labeler option (repeatable).")
 @click.option("--backends", default=None, help="Backends of an LLM labeler (passed as its option 'backends').")
 @click.option("--dry-run", is_flag=True, help="Print how many calls labelling would make (labeler's plan()).")
@@ -83,7 +72,7 @@ def label_in_chunks(labeler: Any, name: str, items: Sequence[Any], on_chunk: Any
 @click.option("--chunk", type=click.IntRange(min=1), default=DEFAULT_CHUNK, show_default=True,
               help="CoTs per label_batch call (a kill loses at most one chunk).")
 @click.option("--quiet", is_flag=True, help="No progress on stderr.")
-def label_command(directory: Path | None, labeler_name: str, labeler_opts: tuple[str, ...], backends: str | None,
+def label_command(directory: Path | None, labeler_name: str | None, labeler_opts: tuple[str, ...], backends: str | None,
                   dry_run: bool, texts: Path | None, out: Path | None, chunk: int, quiet: bool) -> None:
     """Label the CoTs of every episode in DIRECTORY (or of a JSONL file with --texts … --out …).
 
@@ -103,9 +92,11 @@ def label_command(directory: Path | None, labeler_name: str, labeler_opts: tuple
         from vladrivebench._analysis.labels import read_jsonl
 
         entries = read_jsonl(texts)  # read (and validate) the input before building a paid labeler
+        labeler_name = labeler_name or _default_labeler()
         labeler = _labeler(labeler_name, options, backends)
         _label_texts(labeler, labeler_name, entries, out, dry_run, chunk, quiet)
     else:
+        labeler_name = labeler_name or _default_labeler()
         labeler = _labeler(labeler_name, options, backends)
         _label_directory(labeler, labeler_name, directory, dry_run, chunk, quiet)
 
@@ -121,7 +112,7 @@ def _label_texts(labeler: Any, name: str, entries: list, out: Path | None, dry_r
         raise ConfigError(f"--out {out}: the folder {out.parent} does not exist")
     results: list = []
     label_in_chunks(labeler, name, [e.item for e in entries], lambda _batch, labels: results.extend(labels),
-                    chunk, None if quiet else Progress(len(entries)))
+                    chunk, None if quiet or not entries else _label_progress(len(entries)))
     write_jsonl(out, entries, results)
     unlabelled = sum(1 for r in results if r.unlabelled)
     click.echo(f"labelled {len(entries)} CoTs with {name} {labeler.version} → {out}"
@@ -166,7 +157,7 @@ def _label_directory(labeler: Any, name: str, directory: Path, dry_run: bool, ch
                   labeler.version)
 
     done = label_in_chunks(labeler, name, [item for item, _ in pending], store_chunk, chunk,
-                           None if quiet or not pending else Progress(len(pending)))
+                           None if quiet or not pending else _label_progress(len(pending)))
     repeats = total - stored - done
     click.echo(f"labelled {done} new CoTs for {total} steps ({stored} already stored"
                + (f", {repeats} repeat a CoT in an identical situation" if repeats else "")

@@ -7,8 +7,6 @@ from typing import Any
 
 from vladrivebench._analysis.tables import wilson_interval
 
-LABELER = "lexicon"
-
 
 def label_and_summarise(out: Path, registry: Any, *, quiet: bool = True) -> tuple[list[str], Path]:
     """Label the demo's episodes, write an HTML report beside them; return summary lines and its path."""
@@ -16,8 +14,9 @@ def label_and_summarise(out: Path, registry: Any, *, quiet: bool = True) -> tupl
     from vladrivebench._analysis.report import compute_all, write_report
     from vladrivebench._cli.analysis import label_directory
 
-    label_directory(registry.create("labeler", LABELER), LABELER, out, quiet=quiet)
-    dataset = load_dataset(out, labeler=LABELER)
+    labeler = registry.default("labeler", "a labeler plugin (vdb label --labeler)").name
+    label_directory(registry.create("labeler", labeler), labeler, out, quiet=quiet)
+    dataset = load_dataset(out, labeler=labeler)
     report_path = out / "report.html"
     write_report(dataset, compute_all(dataset, registry), "html", report_path)
     return headline(dataset), report_path

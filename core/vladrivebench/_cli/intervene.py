@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import json
 import shlex
-import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -44,22 +44,18 @@ def parse_names(text: str, flag: str) -> tuple[str, ...]:
     return names
 
 
-class Progress:
-    """Episodes done / total, rate and ETA on stderr, at most every ``interval`` seconds."""
+def episode_progress(what: str) -> Callable[[str, int, int], None]:
+    """An intervention run's ``progress(label, done, total)`` callback drawing the shared progress line."""
+    from vladrivebench._cli.progress import Progress
 
-    def __init__(self, interval: float = 1.0):
-        self.started = time.perf_counter()
-        self.interval, self.last = interval, 0.0
+    shown: list[Progress] = []
 
-    def __call__(self, label: str, done: int, total: int) -> None:
-        now = time.perf_counter()
-        if done < total and now - self.last < self.interval:
-            return
-        self.last = now
-        elapsed = now - self.started
-        eta = elapsed / done * (total - done) if done else 0.0
-        click.echo(f"\r[{done}/{total}] {label}  {elapsed:.0f}s elapsed, ETA {eta:.0f}s\033[K",
-                   err=True, nl=done == total)
+    def progress(label: str, done: int, total: int) -> None:
+        if not shown:
+            shown.append(Progress(what, total, unit="episodes", close=True))
+        shown[0].advance(count=done - shown[0].done, note=label)
+
+    return progress
 
 
 def build_config(opts: dict[str, Any], registry: Any) -> Any:
@@ -80,7 +76,8 @@ def build_config(opts: dict[str, Any], registry: Any) -> Any:
     return InterventionConfig(
         mode=mode,
         model=ComponentSpec("model", opts["model"], parse_options(opts["model_opt"], "--model-opt")),
-        simulator=ComponentSpec("simulator", opts["sim"], parse_options(opts["sim_opt"], "--sim-opt")),
+        simulator=ComponentSpec("simulator", opts["sim"] or registry.default("simulator", "--sim").name,
+                                parse_options(opts["sim_opt"], "--sim-opt")),
         controller=ComponentSpec("controller", opts["controller"],
                                  parse_options(opts["controller_opt"], "--controller-opt")),
         routes=routes, conditions=conditions, seeds=seed_list(opts["seeds"], opts["seed_offset"]),
@@ -116,7 +113,7 @@ def _num(value: Any) -> str:
 
 @click.command("intervene")
 @click.option("--model", help="Registered model name (see `vdb list-plugins`).")
-@click.option("--sim", default="kinematic", show_default=True, help="Simulator.")
+@click.option("--sim", default=None, help="Simulator (default: the one a simulator plugin declares, e.g. kinematic).")
 @click.option("--controller", default="pid", show_default=True, help="Trajectory tracker (pid or mpc).")
 @click.option("--route", help="Route id(s), comma-separated: E.1, E.2; safety: SAFE.kerb-ped, SAFE.centre-ped, SAFE.car.")
 @click.option("--mode", type=click.Choice(["open-loop", "closed-loop", "safety"]), default="open-loop",
@@ -174,7 +171,7 @@ def intervene_command(**opts: Any) -> None:
     if results is None:
         registry = get_registry()
         config = build_config(opts, registry)
-        progress = None if opts["quiet"] else Progress()
+        progress = None if opts["quiet"] else episode_progress("vdb intervene")
         results = InterventionRun(config, out, registry=registry, progress=progress).run()
     if opts["plan"]:
         plans = seed_plan(results, effect_m=opts["effect"], power=opts["power"], alpha=opts["alpha"])

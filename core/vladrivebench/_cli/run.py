@@ -7,10 +7,8 @@ from __future__ import annotations
 
 import json
 import os
-import sys
 import tempfile
-import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -29,17 +27,7 @@ CONFIG_KEYS: dict[str, str] = {
 
 DEMO_SCENARIOS = ("P.1", "C.1", "TL.1-red", "E.1")
 DEMO_SEEDS = 2
-# Known error rates, so the scripted demo shows the benchmark recovering them from the CoTs alone.
-DEMO_MODEL_OPTIONS = {"miss_rate": 0.2, "hallucination_rate": 0.1, "contradiction_rate": 0.05, "alpha": 0.5}
-DEMO_SETUPS: dict[str, dict[str, Any]] = {
-    # the neural reference sees only the camera, so the camera is rendered; it was trained with the MPC tracker
-    "kv": {"controller": "mpc", "sim_options": {}, "model_options": {},
-           "about": "the neural kv model (Alpamayo-like, trained here), camera only"},
-    # the scripted model perceives through the ground truth: no camera needed (3x faster)
-    "scripted": {"controller": "pid", "sim_options": {"render": False}, "model_options": DEMO_MODEL_OPTIONS,
-                 "about": "the scripted model configured with "
-                          + ", ".join(f"{k}={v}" for k, v in DEMO_MODEL_OPTIONS.items())},
-}
+# Which model the demo runs, and how, is declared by the model plugins (``register_defaults("demo", …)``).
 
 
 @dataclass
@@ -47,7 +35,7 @@ class RunSettings:
     """A ``vdb run`` request once the config file and the command line are merged."""
 
     model: str | None = None
-    sim: str = "kinematic"
+    sim: str | None = None  # None: the simulator a plugin declares as the default
     controller: str = "pid"
     scenarios: Any = None
     seeds: int | None = None
@@ -118,8 +106,9 @@ def build_request(settings: RunSettings, registry: Any):
         raise ConfigError(f"vdb run: missing {', '.join(missing)} (give them on the command line or in --config)")
     seeds = seed_list(settings.seeds, settings.seed_offset)
     scenarios = resolve_scenarios(settings.scenarios, registry)
+    sim = settings.sim or registry.default("simulator", "--sim").name
     config = RunConfig(ComponentSpec("model", settings.model, settings.model_options),
-                       ComponentSpec("simulator", settings.sim, settings.sim_options),
+                       ComponentSpec("simulator", sim, settings.sim_options),
                        ComponentSpec("controller", settings.controller, settings.controller_options),
                        tuple(scenarios), seeds, settings.log_images)
     executor_name = settings.executor or ("process" if (settings.workers or 1) > 1 else "sequential")
@@ -137,45 +126,19 @@ def _default_workers(executor_name: str) -> int:
 
 
 # -- progress and summary -----------------------------------------------------------------------------
-class Progress:
-    """Episodes done / to do, rate and ETA on stderr: one updating line on a terminal, else a line at most
-    every ``interval`` seconds (and the last one)."""
+def episode_progress(what: str) -> Callable[[Any, int, int], None]:
+    """A sweep's ``on_outcome(outcome, done, todo)`` callback drawing the shared progress line."""
+    from vladrivebench._cli.progress import Progress
 
-    def __init__(self, stream: Any = None, interval: float = 2.0):
-        self.stream = stream or sys.stderr
-        self.interval = interval
-        self.started = time.perf_counter()
-        self.last_print = -1e9
-        self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
-        self.failed = 0
+    shown: list[Progress] = []
 
-    def __call__(self, outcome: Any, done: int, todo: int) -> None:
-        self.failed += outcome.status != "ok"
-        now = time.perf_counter()
-        if done < todo and now - self.last_print < (0.1 if self.tty else self.interval):
-            return
-        self.last_print = now
-        elapsed = now - self.started
-        rate = done / elapsed if elapsed > 0 else 0.0
-        eta = (todo - done) / rate if rate > 0 else 0.0
-        failed = f", {self.failed} failed" if self.failed else ""
-        line = f"vdb: {done}/{todo} episodes{failed}, {rate:.2f}/s, ETA {_duration(eta)}"
-        if self.tty:
-            self.stream.write("\r" + line.ljust(70) + ("\n" if done == todo else ""))
-        else:
-            self.stream.write(line + "\n")
-        self.stream.flush()
+    def on_outcome(outcome: Any, done: int, todo: int) -> None:
+        if not shown:
+            shown.append(Progress(what, todo, unit="episodes", close=True, interval=2.0))
+        progress = shown[0]
+        progress.advance(failed=outcome.status != "ok", count=done - progress.done)
 
-
-def _duration(seconds: float) -> str:
-    seconds = int(round(seconds))
-    if seconds < 60:
-        return f"{seconds}s"
-    minutes, seconds = divmod(seconds, 60)
-    if minutes < 60:
-        return f"{minutes}m{seconds:02d}s"
-    hours, minutes = divmod(minutes, 60)
-    return f"{hours}h{minutes:02d}m"
+    return on_outcome
 
 
 def format_summary(summary: Any) -> str:
@@ -215,7 +178,7 @@ def execute(settings: RunSettings, *, quiet: bool):
     config, executor, executor_info = build_request(settings, registry)
     return run_sweep(config, Path(settings.out), executor=executor, executor_info=executor_info,
                      retry_failed=settings.retry_failed, registry=registry,
-                     on_outcome=None if quiet else Progress())
+                     on_outcome=None if quiet else episode_progress("vdb run"))
 
 
 # -- commands -----------------------------------------------------------------------------------------
@@ -264,7 +227,7 @@ def run_command(ctx: click.Context, config_file: str | None, quiet: bool, as_jso
 
 @click.command("demo")
 @click.option("--model", "model", default=None,
-              help="kv (the neural Alpamayo-like reference, the default when installed) or scripted.")
+              help="A model whose plugin declares how to demo it (default: the highest-priority one, e.g. kv).")
 @click.option("--out", type=click.Path(file_okay=False), help="Output directory (default: a new temporary one).")
 @click.option("--quiet", is_flag=True, help="No progress on stderr.")
 @click.option("--json", "as_json", is_flag=True, help="Print a machine-readable summary on stdout.")
@@ -274,29 +237,44 @@ def demo_command(model: str | None, out: str | None, quiet: bool, as_json: bool)
     from vladrivebench._engine.registry import get_registry
 
     registry = get_registry()
-    model = model or ("kv" if "kv" in registry.names("model") else "scripted")
-    if model not in DEMO_SETUPS:
-        raise ConfigError(f"vdb demo --model: expected one of {', '.join(DEMO_SETUPS)}, got {model!r} "
-                          f"(use `vdb run` for any other model)")
+    setup = demo_setup(registry, model)
+    model = setup.name
     out = out or tempfile.mkdtemp(prefix="vdb-demo-")
-    summary = run_demo(Path(out), model=model, quiet=quiet)
+    summary = run_demo(Path(out), model=model, quiet=quiet, registry=registry)
     report(summary, as_json=as_json)
     if as_json:
         return
     lines, report_path = label_and_summarise(Path(out), registry, quiet=quiet)
-    click.echo(f"\nCoT quality and alignment (lexicon labels; 95 % Wilson intervals) — {DEMO_SETUPS[model]['about']}:")
+    labeler = registry.default("labeler", "a labeler plugin").name
+    click.echo(f"\nCoT quality and alignment ({labeler} labels; 95 % Wilson intervals) — {setup.settings.get('about', model)}:")
     for line in lines:
         click.echo(f"  {line}")
     click.echo(f"\nReport: {report_path}\nMore: vdb metrics {out}   |   vdb report {out} --format md --out report.md"
-               f"\nIntervention: vdb intervene --model {model} --controller {DEMO_SETUPS[model]['controller']} "
+               f"\nIntervention: vdb intervene --model {model} --controller {setup.settings.get('controller', 'pid')} "
                f"--route E.1 --mode open-loop --out {out}-ol")
 
 
-def run_demo(out: Path, *, model: str = "scripted", quiet: bool = False, workers: int = 1):
-    """The demo sweep of ``model`` (see :data:`DEMO_SETUPS`) on the kinematic simulator into ``out``."""
-    setup = DEMO_SETUPS[model]
-    settings = RunSettings(model=model, sim="kinematic", controller=setup["controller"],
-                           sim_options=dict(setup["sim_options"]), model_options=dict(setup["model_options"]),
+def demo_setup(registry: Any, model: str | None) -> Any:
+    """How ``vdb demo`` runs ``model`` (or the default demo model), as its plugin declared it."""
+    if model is None:
+        return registry.default("demo", "--model")
+    for declared in registry.default_declarations("demo"):
+        if declared.name == model:
+            return declared
+    offered = ", ".join(sorted({d.name for d in registry.default_declarations("demo")})) or "none installed"
+    raise ConfigError(f"vdb demo --model: expected a model whose plugin declares a demo ({offered}), got "
+                      f"{model!r} (use `vdb run` for any other model)")
+
+
+def run_demo(out: Path, *, model: str | None = None, quiet: bool = False, workers: int = 1, registry: Any = None):
+    """The demo sweep of ``model`` (as its plugin declares it) on the default simulator into ``out``."""
+    from vladrivebench._engine.registry import get_registry
+
+    declared = demo_setup(registry or get_registry(), model)
+    setup = declared.settings
+    settings = RunSettings(model=declared.name, controller=setup.get("controller", "pid"),
+                           sim_options=dict(setup.get("sim_options", {})),
+                           model_options=dict(setup.get("model_options", {})),
                            scenarios=list(DEMO_SCENARIOS), seeds=DEMO_SEEDS, out=str(out), workers=workers)
     return execute(settings, quiet=quiet)
 

@@ -70,6 +70,22 @@ class Component:
     path: Path | None = None
 
 
+@dataclass(frozen=True)
+class DefaultDeclaration:
+    """A plugin's ``register_defaults`` entry: use ``name`` for ``kind`` unless the user chooses."""
+
+    kind: str
+    name: str
+    priority: int
+    settings: Mapping[str, Any]
+    plugin: str
+    distribution: str
+
+
+DEFAULT_KINDS = ("simulator", "labeler", "demo")
+"""What plugins may declare defaults for (``demo`` names a model, with how ``vdb demo`` runs it)."""
+
+
 @dataclass
 class PluginInfo:
     """A plugin as ``vdb list-plugins`` shows it."""
@@ -114,6 +130,7 @@ class Registry:
         self.manager.add_hookspecs(hookspecs)
         self.plugins: list[PluginInfo] = []
         self._components: dict[str, dict[str, Component]] = {kind: {} for kind in KINDS}
+        self._defaults: list[DefaultDeclaration] = []
         if entry_points:
             for ep in _entry_points():
                 self._load_entry_point(ep)
@@ -154,9 +171,11 @@ class Registry:
                 for impl in getattr(self.manager.hook, hook_name).get_hookimpls():
                     if impl.plugin_name == name:
                         impl.function(register=self._collector(kind, info, staged))
+            declared = self._collect_defaults(name, info, staged)
         except Exception as exc:
             self.manager.unregister(name=name)
             return self._fail(info, f"failed while registering: {_describe(exc)}")
+        self._defaults.extend(declared)
         for comp in staged:
             self._components[comp.kind][comp.name] = comp
             info.registered.setdefault(comp.kind, []).append(comp.name)
@@ -183,6 +202,25 @@ class Registry:
             staged.append(comp)
 
         return register
+
+    def _collect_defaults(self, name: str, info: PluginInfo, staged: list[Component]) -> list[DefaultDeclaration]:
+        declared: list[DefaultDeclaration] = []
+
+        def register(kind: Any, component: Any, priority: int = 0, **settings: Any) -> None:
+            if kind not in DEFAULT_KINDS:
+                raise ValueError(f"defaults can be declared for {', '.join(DEFAULT_KINDS)}, not {kind!r}")
+            own_kind = "model" if kind == "demo" else kind
+            if not any(c.kind == own_kind and c.name == component for c in staged):
+                raise ValueError(f"default {kind} {component!r} is not a {own_kind} this plugin registers")
+            if not isinstance(priority, int) or isinstance(priority, bool):
+                raise ValueError(f"default {kind} {component!r}: priority must be an integer, got {priority!r}")
+            declared.append(DefaultDeclaration(kind, component, priority, dict(settings), info.name,
+                                               info.distribution))
+
+        for impl in self.manager.hook.register_defaults.get_hookimpls():
+            if impl.plugin_name == name:
+                impl.function(register=register)
+        return declared
 
     def _fail(self, info: PluginInfo, error: str) -> PluginInfo:
         info.status, info.error = "error", error
@@ -231,6 +269,26 @@ class Registry:
                 if info is not None:
                     info.status, info.error = "error", f"{hook_name} failed: {_describe(exc)}"
         return results
+
+    def default_declarations(self, kind: str) -> list[DefaultDeclaration]:
+        """Every plugin's default for ``kind``, highest priority first (ties in plugin order)."""
+        return sorted((d for d in self._defaults if d.kind == kind), key=lambda d: -d.priority)
+
+    def default(self, kind: str, flag: str) -> DefaultDeclaration:
+        """The default ``kind`` by the rule of :func:`~vladrivebench.hookspecs.register_defaults`, or a
+        one-line error saying how to choose with ``flag``."""
+        declared = self.default_declarations(kind)
+        what = "model for vdb demo" if kind == "demo" else kind
+        if not declared:
+            listing = ", ".join(self.names("model" if kind == "demo" else kind)) or "none installed"
+            raise ConfigError(f"no installed plugin declares a default {what}: choose one with {flag} "
+                              f"(available: {listing})")
+        tied = [d for d in declared if d.priority == declared[0].priority]
+        if len(tied) > 1:
+            names = ", ".join(f"{d.name!r} (plugin {d.plugin!r}, {d.distribution})" for d in tied)
+            raise ConfigError(f"several plugins declare the default {what} with priority {tied[0].priority}: "
+                              f"{names}; choose one with {flag}")
+        return declared[0]
 
     def failures(self) -> list[PluginInfo]:
         return [p for p in self.plugins if p.status == "error"]

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import email.utils
-import io
 
 import httpx
 import numpy as np
@@ -19,7 +18,6 @@ from vdb_labeler_ensemble.client import (
     RetryPolicy,
     retry_after_seconds,
 )
-from vdb_labeler_ensemble.progress import Progress, format_duration
 from vdb_labeler_ensemble.testing import FakeClock
 
 
@@ -105,55 +103,3 @@ def test_connection_errors_are_retried():
     assert len(attempts) == 3 and len(clock.sleeps) == 2
 
 
-def test_progress_reports_rate_and_eta():
-    clock = FakeClock()
-    stream = io.StringIO()
-    progress = Progress("ensemble", 10, cached=5, stream=stream, clock=clock, interval=0.0)
-    clock.now += 4.0
-    progress.advance()
-    progress.advance(failed=True)
-    assert stream.getvalue().splitlines()[-1] == "ensemble: 2/10 calls, 5 cached, 1 failed, 0.5 calls/s, ETA 16s"
-    for _ in range(8):
-        progress.advance()
-    assert stream.getvalue().splitlines()[-1] == "ensemble: 10/10 calls, 5 cached, 1 failed, done in 4s"
-
-
-def test_progress_is_throttled_off_a_terminal_and_silent_for_short_batches():
-    clock = FakeClock()
-    stream = io.StringIO()
-    progress = Progress("x", 100, stream=stream, clock=clock)
-    for _ in range(99):
-        progress.advance()
-    progress.advance()
-    assert stream.getvalue() == ""  # done within 10 s: nothing to say, the caller reports the result
-    long = Progress("x", 100, stream=stream, clock=clock)
-    for _ in range(100):
-        clock.now += 1.0
-        long.advance()
-    lines = stream.getvalue().splitlines()
-    assert len(lines) == 10 and lines[0] == "x: 10/100 calls, 1.0 calls/s, ETA 1m30s"
-    assert lines[-1] == "x: 100/100 calls, done in 1m40s"
-    quiet = io.StringIO()
-    Progress("x", 3, stream=quiet, clock=clock, interval=0.0, enabled=False).advance()
-    assert quiet.getvalue() == ""
-
-
-class Terminal(io.StringIO):
-    def isatty(self):
-        return True
-
-
-def test_on_a_terminal_the_line_is_redrawn_then_cleared():
-    clock = FakeClock()
-    stream = Terminal()
-    progress = Progress("x", 3, stream=stream, clock=clock)
-    for _ in range(3):
-        clock.now += 1.0
-        progress.advance()
-    assert stream.getvalue() == ("\r\x1b[2Kx: 1/3 calls, 1.0 calls/s, ETA 2s\r\x1b[2Kx: 2/3 calls, 1.0 calls/s, ETA 1s"
-                                 "\r\x1b[2K")
-
-
-@pytest.mark.parametrize("seconds, text", [(None, "?"), (0.4, "0s"), (42, "42s"), (185, "3m05s"), (3720, "1h02m")])
-def test_durations(seconds, text):
-    assert format_duration(seconds) == text

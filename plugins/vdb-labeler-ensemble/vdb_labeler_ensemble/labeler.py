@@ -26,13 +26,13 @@ from urllib.parse import urlsplit
 import httpx
 import numpy as np
 from vladrivebench import ConfigError, LabelInput, Labels
+from vladrivebench.cli import Progress
 
 from . import LABELER_NAME, __version__
 from .answer import InvalidAnswer, parse_reply
 from .backends import BackendSpec, Reply, parse_backend, parse_backends
 from .cache import ResponseCache, cache_key, default_cache_path
 from .client import BackendClient, CallFailed, Jitter, Redactor, RetryPolicy
-from .progress import Progress
 from .prompt import Prompt, load_prompt
 from .vote import Decision, decide, describe_splits
 

@@ -201,6 +201,7 @@ def test_pedestrian_synonyms_are_mentions(word, distance):
 @settings(max_examples=100, deadline=None)
 @given(forward=st.floats(0.0, 80.0), lateral=st.floats(-10.0, 10.0))
 def test_stated_coordinates_decide_mention_and_fabrication(forward, lateral):
+    forward, lateral = round(forward, 2), round(lateral, 2)  # what the text states (two decimals)
     context = pedestrian_ahead(20.0)
     slots = {"scene": "The scene depicts a road.", "objects": f"Pedestrian at <{lateral:.2f}, {forward:.2f}> in view.",
              "decision": "You should slow down."}

@@ -19,3 +19,8 @@ def make_lexicon_labeler(filter_phantom_car: bool = False):
 def register_labelers(register):
     register("lexicon", make_lexicon_labeler,
              description="deterministic offline lexicon rules (the default labeler)")
+
+
+@vladrivebench.hookimpl
+def register_defaults(register):
+    register("labeler", "lexicon", priority=10)

@@ -33,3 +33,10 @@ def register_commands(cli):
     from .train import train_command
 
     cli.add_command(train_command)
+
+
+@vladrivebench.hookimpl
+def register_defaults(register):
+    # it sees only the camera, so the camera is rendered; it was trained with the MPC tracker
+    register("demo", "kv", priority=10, controller="mpc", sim_options={}, model_options={},
+             about="the neural kv model (Alpamayo-like, trained here), camera only")

@@ -28,3 +28,15 @@ def make_scripted(alpha: float = 0.5, miss_rate: float = 0.0, hallucination_rate
 def register_models(register):
     register("scripted", make_scripted,
              description="scripted reference VLA: ground-truth perception, known CoT error rates, coupling alpha")
+
+
+DEMO_MODEL_OPTIONS = {"miss_rate": 0.2, "hallucination_rate": 0.1, "contradiction_rate": 0.05, "alpha": 0.5}
+"""Known error rates, so the scripted demo shows the benchmark recovering them from the CoTs alone."""
+
+
+@vladrivebench.hookimpl
+def register_defaults(register):
+    # it perceives through the ground truth: no camera needed (3x faster); below kv, the demo's first choice
+    register("demo", "scripted", priority=0, controller="pid", sim_options={"render": False},
+             model_options=dict(DEMO_MODEL_OPTIONS),
+             about="the scripted model configured with " + ", ".join(f"{k}={v}" for k, v in DEMO_MODEL_OPTIONS.items()))

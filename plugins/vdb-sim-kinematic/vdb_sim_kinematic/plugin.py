@@ -18,3 +18,8 @@ def make_simulator(width: int = 160, height: int = 80, render: bool = True, hfov
 def register_simulators(register):
     register("kinematic", make_simulator,
              description="kinematic bicycle ego, scripted pedestrians/cars, numpy pinhole camera (10 Hz)")
+
+
+@vladrivebench.hookimpl
+def register_defaults(register):
+    register("simulator", "kinematic", priority=10)

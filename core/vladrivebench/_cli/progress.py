@@ -1,9 +1,9 @@
-"""Progress with an ETA on stderr while calls are being made.
+"""The one progress line of every ``vdb`` command and plugin: done/total, rate and ETA on stderr.
 
-On a terminal the line is redrawn in place and cleared when the batch is done; otherwise (a log file, CI)
-a line is printed every ``interval`` seconds, and a closing line if any was, so short batches stay silent
-and the ``vdb label`` command's own progress is not drowned. The ETA is the remaining calls divided by
-the rate so far.
+On a terminal the line is redrawn in place and cleared when the work is done (or, with ``close=True``,
+left as a closing line); otherwise (a log file, CI) a line is printed every ``interval`` seconds and a
+closing line if any was (always, with ``close=True``), so short batches stay silent unless the command wants
+its total reported. The ETA is the remaining work divided by the rate so far.
 """
 
 from __future__ import annotations
@@ -15,12 +15,14 @@ from typing import TextIO
 
 
 class Progress:
-    """Counts finished calls out of ``total`` and reports them with a rate and an ETA."""
+    """Counts finished ``unit``s (calls, episodes, CoTs) out of ``total`` and reports them with a rate and an
+    ETA. ``note`` (set by :meth:`advance`) says what finished last (e.g. the episode)."""
 
     def __init__(self, what: str, total: int, cached: int = 0, *, stream: TextIO | None = None,
                  clock: Callable[[], float] = time.monotonic, interval: float | None = None,
-                 enabled: bool = True):
+                 enabled: bool = True, unit: str = "calls", close: bool = False):
         self.what, self.total, self.cached = what, total, cached
+        self.unit, self.close, self.note = unit, close, ""
         self.done = self.failed = 0
         self._stream = stream if stream is not None else sys.stderr
         self._clock = clock
@@ -30,10 +32,11 @@ class Progress:
         self._start = self._last_shown = clock()
         self._shown = False
 
-    def advance(self, failed: bool = False) -> None:
-        """One more call finished (successfully or not)."""
-        self.done += 1
+    def advance(self, failed: bool = False, *, count: int = 1, note: str = "") -> None:
+        """``count`` more units finished (``failed``: one of them failed)."""
+        self.done += count
         self.failed += int(failed)
+        self.note = note
         now = self._clock()
         if self.done >= self.total:
             self._finish(now)
@@ -45,14 +48,16 @@ class Progress:
         now = self._clock() if now is None else now
         elapsed = max(now - self._start, 0.0)
         rate = self.done / elapsed if elapsed > 0 else 0.0
-        parts = [f"{self.what}: {self.done}/{self.total} calls"]
+        parts = [f"{self.what}: {self.done}/{self.total} {self.unit}"]
         if self.cached:
             parts.append(f"{self.cached} cached")
         if self.failed:
             parts.append(f"{self.failed} failed")
         if self.done < self.total:
             eta = (self.total - self.done) / rate if rate > 0 else None
-            parts.append(f"{rate:.1f} calls/s, ETA {format_duration(eta)}")
+            parts.append(f"{rate:.1f} {self.unit}/s, ETA {format_duration(eta)}")
+            if self.note:
+                parts.append(self.note)
         else:
             parts.append(f"done in {format_duration(elapsed)}")
         return ", ".join(parts)
@@ -68,9 +73,12 @@ class Progress:
         self._stream.flush()
 
     def _finish(self, now: float) -> None:
-        if not (self._enabled and self._shown):
+        if not self._enabled or not (self._shown or self.close):
             return
-        self._stream.write("\r\x1b[2K" if self._tty else self.line(now) + "\n")
+        if self._tty:
+            self._stream.write("\r\x1b[2K" + (self.line(now) + "\n" if self.close else ""))
+        else:
+            self._stream.write(self.line(now) + "\n")
         self._stream.flush()
 
 
