@@ -73,6 +73,7 @@ def test_a_drifting_splice_fails_the_gate_while_selfsplice_alone_passes(tmp_path
     assert not results["valid"] and gate["fidelity_steps_failed"] == gate["steps_checked"] > 0  # … fidelity not
     assert gate["max_fidelity_cache_diff"] == 0.5 and gate["max_fidelity_trajectory_diff"] == 5.0
     message = gate_message(results)
+    assert message.startswith("INVALID RUN: selfsplice holds but the gate failed at")
     assert "native forward pass" in message and "0.5" in message and "\n" not in message
 
 

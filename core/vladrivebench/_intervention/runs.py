@@ -773,6 +773,9 @@ def gate_message(results: Mapping[str, Any]) -> str | None:
     parts = [f"selfsplice differs from the model's own CoT at {gate['steps_failed']} of {gate['steps_checked']} "
              f"steps{where}", f"state digest mismatches: {gate['digest_mismatches']}",
              f"largest trajectory difference: {gate['max_trajectory_diff']:.3g} m"]
+    if gate.get("fidelity_steps_failed") and not gate["digest_mismatches"] and not gate["max_trajectory_diff"]:
+        parts = [f"selfsplice holds but the gate failed at {gate['steps_failed']} of {gate['steps_checked']} "
+                 f"steps{where}"]
     if gate.get("episode_mismatches"):
         parts.append(f"selfsplice episodes differing from their baseline: {', '.join(gate['episode_mismatches'])}")
     if gate.get("fidelity_steps_failed"):
