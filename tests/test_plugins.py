@@ -6,6 +6,7 @@ import types
 
 import pytest
 import vladrivebench
+import vladrivebench.testing
 from vladrivebench._engine.registry import Registry
 from vladrivebench.errors import ConfigError, PluginLoadError, UnknownNameError
 from vladrivebench.testing import isolated_registry
@@ -141,3 +142,57 @@ def test_malformed_import_path_fails_the_plugin():
 
     registry = Registry([("bad", make_plugin(register_models=register_models))], entry_points=False)
     assert registry.plugins[0].status == "error" and "package.module:attribute" in registry.plugins[0].error
+
+
+class InlineExecutor:
+    """Runs every job in the calling process, in reverse order (any order is allowed)."""
+
+    in_process = True
+
+    def __init__(self, workers: int = 1):
+        self.workers = workers
+
+    def run(self, worker, jobs):
+        for job in reversed(list(jobs)):
+            yield worker(job)
+
+
+class ExecutorAndCommandPlugin:
+    """A third-party plugin adding an executor and a ``vdb`` command."""
+
+    @vladrivebench.hookimpl
+    def register_executors(self, register):
+        register("inline-reversed", InlineExecutor, description="in process, last job first")
+
+    @vladrivebench.hookimpl
+    def register_commands(self, cli):
+        import click
+
+        @cli.command("hello-plugin")
+        @click.argument("name")
+        def hello(name):
+            """Greet NAME (a command a plugin added)."""
+            if name == "nobody":
+                raise vladrivebench.ConfigError("vdb hello-plugin: NAME must name somebody, got 'nobody'")
+            click.echo(f"hello {name}")
+
+
+def test_a_plugin_executor_runs_a_sweep_through_the_cli(tmp_path, capsys, runner_fakes, monkeypatch):
+    from vladrivebench._scenarios import spec
+
+    monkeypatch.setattr(spec, "resolve_scenarios", runner_fakes.fake_resolve_scenarios)
+    with isolated_registry(("fakes", runner_fakes), ("mine", ExecutorAndCommandPlugin()), core=True) as registry:
+        assert "inline-reversed" in registry.names("executor")
+        code = vladrivebench.testing.run_cli(
+            ["run", "--model", "echo", "--sim", "line", "--controller", "speed", "--scenarios", "road",
+             "--seeds", "3", "--out", str(tmp_path), "--executor", "inline-reversed", "--quiet"])
+    assert code == 0, capsys.readouterr().err
+    assert len(list((tmp_path / "episodes").glob("*.mcap"))) == 3
+
+
+def test_a_plugin_command_is_added_to_vdb_and_its_errors_are_one_line(capsys):
+    with isolated_registry(("mine", ExecutorAndCommandPlugin()), core=True):
+        assert vladrivebench.testing.run_cli(["hello-plugin", "world"]) == 0
+        assert capsys.readouterr().out == "hello world\n"
+        assert vladrivebench.testing.run_cli(["hello-plugin", "nobody"]) == 2
+    assert capsys.readouterr().err == "vdb: error: vdb hello-plugin: NAME must name somebody, got 'nobody'\n"

@@ -335,7 +335,7 @@ class EpisodeWriter:
     def _channel(self, topic: str) -> int:
         """The channel id of ``topic``; a rig camera's channel is registered on its first message."""
         if topic not in self._channels:
-            schema = _SCHEMAS[CAMERA_CHANNEL]
+            schema = _SCHEMAS.get(CAMERA_CHANNEL) or foxglove.SCHEMAS[CAMERA_CHANNEL]
             schema_id = self._writer.register_schema(
                 name=schema["title"], encoding="jsonschema", data=json.dumps(schema).encode("utf-8")
             )
