@@ -53,7 +53,7 @@ def closed_loop(model_name: str, batch: int, steps: int, out: Path) -> tuple[flo
             model_time[0] += time.perf_counter() - started
 
     def writer(i: int):
-        return EpisodeWriter(out / f"{model_name}-{batch}-{i}.mcap", {"episode_id": str(i)}).__enter__()
+        return EpisodeWriter(out / f"{model_name}-{batch}-{i}.mcap", {"episode_id": str(i)})
 
     results = []
 
@@ -77,7 +77,7 @@ def closed_loop(model_name: str, batch: int, steps: int, out: Path) -> tuple[flo
             w.finish(result.to_json())
         results.append(result)
     else:
-        episodes = [LockstepEpisode(i, road, i, (lambda i=i: writer(i))) for i in range(batch)]
+        episodes = [LockstepEpisode(i, road, i, (lambda i=i: writer(i).__enter__())) for i in range(batch)]
         run_lockstep(episodes, batch, make_lane=lambda i: (model, *lanes[i]), done=done, batch_policy=timed_policy)
     wall = time.perf_counter() - started
     total_steps = sum(r.steps for r in results)
@@ -132,12 +132,14 @@ def main() -> None:
     sizes = [int(s) for s in args.sizes.split(",")]
     with tempfile.TemporaryDirectory() as tmp:
         for model in ("kv", "qa"):
-            base = None
+            base = model_base = None
             for batch in sizes:
                 rate, harness = closed_loop(model, batch, args.steps, Path(tmp))
-                base = base or rate
+                model_rate = rate / (1.0 - harness)  # episode-steps per second of model time alone
+                base, model_base = base or rate, model_base or model_rate
                 print(f"{model} B={batch:>3}: {rate:7.1f} episode-steps/s  ×{rate / base:5.2f} vs B={sizes[0]}  "
-                      f"harness {100 * harness:4.1f} % of the step", flush=True)
+                      f"(model time alone ×{model_rate / model_base:5.2f})  harness {100 * harness:4.1f} % of the step",
+                      flush=True)
     if not args.skip_sweep:
         worst, differing, compared, one, sixteen = sweep_difference(16)
         print(f"kv sweep (P.1, C.1, TL.1-red, E.1 × 4 seeds) B=1 vs B=16: largest waypoint difference "

@@ -40,5 +40,6 @@ def register_commands(cli):
 @vladrivebench.hookimpl
 def register_defaults(register):
     # it sees only the camera, so the camera is rendered; it was trained with the MPC tracker
-    register("demo", "kv", priority=10, controller="mpc", sim_options={}, model_options={},
+    # its 8 episodes advance in lockstep through one model (vdb run --batch 8): one batched call per step
+    register("demo", "kv", priority=10, controller="mpc", sim_options={}, model_options={}, batch=8,
              about="the neural kv model (Alpamayo-like, trained here), camera only")
