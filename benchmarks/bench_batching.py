@@ -1,7 +1,8 @@
 """Lockstep batches (`vdb run --batch B`): closed-loop throughput, harness share, batched-vs-unbatched
 difference and the demo's wall time, all measured in one run.
 
-    python benchmarks/bench_batching.py [--steps 20] [--sizes 1,4,16,64] [--skip-sweep] [--skip-demo]
+    python benchmarks/bench_batching.py [--steps 20] [--sizes 1,4,16,64] [--sweep-seconds 5] [--skip-sweep]
+                                        [--skip-demo]
 
 1. Closed-loop steps per second of ``kv`` and ``qa`` on the kinematic simulator (camera rendered, MPC
    controller, every step logged to MCAP) at B = 1 (today's per-episode path, ``run_episode``) and at
@@ -9,7 +10,8 @@ difference and the demo's wall time, all measured in one run.
 2. The harness (simulator, rendering, control, logging: everything but the model's batched calls) as a
    share of a batched step.
 3. The largest waypoint difference between a sweep run at B = 1 and at B = 16 (the demo's scenarios ×
-   4 seeds with ``kv``), over the steps both runs share, and how many CoTs differ.
+   4 seeds with ``kv``, each cut to ``--sweep-seconds``), over the steps both runs share, and how many
+   CoTs differ.
 4. ``vdb demo``'s wall time (its episodes, as the demo declares its batch size).
 
 The machine may be shared: read the ratios of one run rather than absolute numbers.
@@ -84,7 +86,7 @@ def closed_loop(model_name: str, batch: int, steps: int, out: Path) -> tuple[flo
     return total_steps / wall, 1.0 - model_time[0] / wall
 
 
-def sweep_difference(batch: int) -> tuple[float, int, int, float, float]:
+def sweep_difference(batch: int, seconds_per_episode: float) -> tuple[float, int, int, float, float]:
     """(largest waypoint difference in m, differing CoTs, compared steps, seconds at B=1, at B=batch)."""
     from vladrivebench._engine.executors import SequentialExecutor
     from vladrivebench._engine.registry import get_registry
@@ -92,8 +94,7 @@ def sweep_difference(batch: int) -> tuple[float, int, int, float, float]:
     from vladrivebench._logs.episodes import read_episode
 
     registry = get_registry()
-    suite = __import__("vladrivebench._scenarios.spec", fromlist=["load_suite"]).load_suite(registry)
-    scenarios = tuple(suite[s] for s in ("P.1", "C.1", "TL.1-red", "E.1"))
+    scenarios = tuple(scenario(s, seconds_per_episode) for s in ("P.1", "C.1", "TL.1-red", "E.1"))
     seconds = {}
     with tempfile.TemporaryDirectory() as tmp:
         for b in (1, batch):
@@ -127,6 +128,7 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=20, help="steps per episode in part 1")
     parser.add_argument("--sizes", default="1,4,16,64")
     parser.add_argument("--skip-sweep", action="store_true")
+    parser.add_argument("--sweep-seconds", type=float, default=5.0, help="episode length limit in part 3")
     parser.add_argument("--skip-demo", action="store_true")
     args = parser.parse_args()
     sizes = [int(s) for s in args.sizes.split(",")]
@@ -141,8 +143,8 @@ def main() -> None:
                       f"(model time alone ×{model_rate / model_base:5.2f})  harness {100 * harness:4.1f} % of the step",
                       flush=True)
     if not args.skip_sweep:
-        worst, differing, compared, one, sixteen = sweep_difference(16)
-        print(f"kv sweep (P.1, C.1, TL.1-red, E.1 × 4 seeds) B=1 vs B=16: largest waypoint difference "
+        worst, differing, compared, one, sixteen = sweep_difference(16, args.sweep_seconds)
+        print(f"kv sweep (P.1, C.1, TL.1-red, E.1 × 4 seeds, ≤ {args.sweep_seconds:g} s each) B=1 vs B=16: largest waypoint difference "
               f"{worst:.3g} m over {compared} shared steps, {differing} CoTs differ; {one:.1f} s vs {sixteen:.1f} s",
               flush=True)
     if not args.skip_demo:

@@ -13,6 +13,8 @@ from dataclasses import replace
 from pathlib import Path
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from vladrivebench._engine import sweep
 from vladrivebench._engine.executors import ProcessExecutor, SequentialExecutor
 from vladrivebench._engine.registry import Registry
@@ -165,3 +167,23 @@ def test_killed_batched_run_resumes_to_the_same_bytes(tmp_path):
     assert resumed.returncode == 0, resumed.stderr
     assert snapshot(out / "episodes") == expected
     assert killed_with < len(expected)
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.lists(st.integers(1, 6), min_size=1, max_size=7), st.integers(1, 4))
+def test_lockstep_runs_every_episode_once_as_it_would_run_alone(lengths, batch):
+    from vladrivebench._engine.runner import LockstepEpisode, run_episode, run_lockstep
+
+    scenarios = [fakes.FakeScenario(f"r{i}", length=1000.0, max_time_s=n * fakes.DT) for i, n in enumerate(lengths)]
+    model = fakes.BatchedEchoModel()
+    fakes.BatchedEchoModel.BATCH_SIZES.clear()
+    finished = []
+    episodes = [LockstepEpisode(i, s, i % 2) for i, s in enumerate(scenarios)]
+    run_lockstep(episodes, batch, make_lane=lambda i: (model, fakes.LineSimulator(), fakes.SpeedController()),
+                 done=lambda episode, result, writer: finished.append((episode.key, result)))
+    assert sorted(key for key, _ in finished) == list(range(len(lengths)))
+    alone = {i: run_episode(fakes.EchoModel(), fakes.LineSimulator(), fakes.SpeedController(), s, i % 2)
+             for i, s in enumerate(scenarios)}
+    assert all(result == alone[key] for key, result in finished)
+    steps = [alone[i].steps for i in range(len(lengths))]
+    assert fakes.BatchedEchoModel.BATCH_SIZES == lockstep_schedule(steps, batch)
