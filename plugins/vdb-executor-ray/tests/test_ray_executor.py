@@ -113,10 +113,7 @@ def test_registration_does_not_import_ray():
 
 
 @pytest.mark.parametrize("model", ["echo-batched", "echo"])
-def test_batched_sweep_on_ray_gives_the_same_bytes_as_sequential(local_ray, tmp_path, monkeypatch, model):
-    from vladrivebench._engine import sweep
-
-    monkeypatch.setattr(sweep, "BATCH_JOB_FACTOR", 1)  # three batch jobs of two episodes: both actors busy
+def test_batched_sweep_on_ray_gives_the_same_bytes_as_sequential(local_ray, tmp_path, model):
     registry = Registry([core_plugin(), ("fakes", fakes), ("ray", plugin)], entry_points=False)
     config = RunConfig(ComponentSpec("model", model), ComponentSpec("simulator", "line"),
                        ComponentSpec("controller", "speed"), fakes.SCENARIOS, (0, 1), batch=2)
