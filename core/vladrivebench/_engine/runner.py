@@ -374,7 +374,7 @@ def run_lockstep(
             if finished is not None:
                 lanes[i] = None
                 if isinstance(finished, EpisodeFailure) and finished.component != "model":
-                    components.pop(i, None)  # rebuild that lane's simulator and controller
+                    components.pop(i, None)  # ask make_lane again for that lane before its next episode
                 done(lane.episode, finished, lane.writer)
 
 
