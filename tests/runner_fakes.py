@@ -163,6 +163,26 @@ class EchoModel:
         return cot.text
 
 
+class BatchedEchoModel(EchoModel):
+    """:class:`EchoModel` with the :class:`~vladrivebench.BatchedModel` capability, for lockstep tests.
+
+    It keeps no per-episode memory (its failure switches are off), so one instance can serve a batch;
+    ``BATCH_SIZES`` records the size of every batched call made in this process.
+    """
+
+    BATCH_SIZES: list[int] = []
+
+    def reset(self, seed: int) -> None:
+        self.seed = None
+
+    def generate_cot_batch(self, observations, rngs):
+        BatchedEchoModel.BATCH_SIZES.append(len(observations))
+        return [self.generate_cot(o, r) for o, r in zip(observations, rngs, strict=True)]
+
+    def decode_action_batch(self, observations, cots, rngs):
+        return [self.decode_action(o, c, r) for o, c, r in zip(observations, cots, rngs, strict=True)]
+
+
 class SpeedController:
     """Proportional control of speed towards the trajectory's first-second mean speed."""
 
@@ -196,6 +216,7 @@ class ExplodingSimulator(LineSimulator):
 @vladrivebench.hookimpl
 def register_models(register):
     register("echo", EchoModel, description="fake model for runner tests")
+    register("echo-batched", BatchedEchoModel, description="fake batched model for lockstep tests")
 
 
 @vladrivebench.hookimpl

@@ -102,4 +102,4 @@ def test_registry_spec_rebuilds_local_plugins():
     spec = RegistrySpec.of(registry)
     assert spec == RegistrySpec(False, (), (("fakes", "runner_fakes"),))
     rebuilt = spec.build()
-    assert rebuilt.names("model") == ["echo"] and rebuilt.names("simulator") == ["exploding", "line"]
+    assert rebuilt.names("model") == ["echo", "echo-batched"] and rebuilt.names("simulator") == ["exploding", "line"]

@@ -188,11 +188,18 @@ class CoTExtras(Protocol):
 
 @runtime_checkable
 class BatchedModel(Protocol):
-    """A model that runs one call for many episodes' observations at once (lockstep batching).
+    """A model that runs one call for many episodes' observations at once (``vdb run --batch B``).
 
     Each list is in order and as long as ``observations``; ``rngs[i]`` is episode i's pinned RNG for the
-    call, so a batched call must give every episode the draws it would have had alone. Results may differ
-    from the unbatched methods in floating point only.
+    call (``step_rng(seed_i, step, purpose, scenario_i)``), so a batched call must give every episode the
+    draws it would have had alone. Results may differ from the unbatched methods in floating point only.
+
+    One instance serves every episode of a batch, so a batched model keeps no per-episode memory outside
+    the CoTs it returns; ``reset(seed)`` is still called whenever an episode joins the batch. A model that
+    needs per-episode memory should not declare this capability: without it, ``--batch`` gives each lane
+    its own instance and calls the per-episode methods. A batched model may also offer
+    ``splice_cot_batch(observations, texts, rngs)``, feeding the texts exactly as ``generate_cot_batch``
+    feeds its own, so that a selfsplice within a batch is bit-identical (the reference models do).
     """
 
     def generate_cot_batch(self, observations: Sequence[Observation],

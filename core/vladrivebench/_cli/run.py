@@ -20,6 +20,7 @@ from vladrivebench.errors import ConfigError, VdbError
 CONFIG_KEYS: dict[str, str] = {
     "model": "str", "sim": "str", "controller": "str", "executor": "str", "address": "str", "out": "str",
     "scenarios": "scenarios", "seeds": "int", "seed_offset": "int", "workers": "int",
+    "batch": "int",
     "log_images": "bool", "retry_failed": "bool",
     "model_options": "table", "sim_options": "table", "controller_options": "table", "executor_options": "table",
 }
@@ -42,6 +43,7 @@ class RunSettings:
     seed_offset: int = 0
     out: str | None = None
     workers: int | None = None
+    batch: Any = 1  # lockstep batch size (checked by sweep.batch_size)
     executor: str | None = None
     address: str | None = None
     log_images: bool = False
@@ -97,7 +99,7 @@ def merge_settings(file_values: Mapping[str, Any], cli_values: Mapping[str, Any]
 def build_request(settings: RunSettings, registry: Any):
     """The sweep's :class:`RunConfig`, its executor and the executor's description, all checked."""
     from vladrivebench._engine.registry import check_options
-    from vladrivebench._engine.sweep import ComponentSpec, RunConfig, seed_list
+    from vladrivebench._engine.sweep import ComponentSpec, RunConfig, batch_size, seed_list
     from vladrivebench._scenarios.spec import resolve_scenarios
 
     missing = [flag for flag, value in (("--model", settings.model), ("--scenarios", settings.scenarios),
@@ -105,12 +107,13 @@ def build_request(settings: RunSettings, registry: Any):
     if missing:
         raise ConfigError(f"vdb run: missing {', '.join(missing)} (give them on the command line or in --config)")
     seeds = seed_list(settings.seeds, settings.seed_offset)
+    batch = batch_size(settings.batch)
     scenarios = resolve_scenarios(settings.scenarios, registry)
     sim = settings.sim or registry.default("simulator", "--sim").name
     config = RunConfig(ComponentSpec("model", settings.model, settings.model_options),
                        ComponentSpec("simulator", sim, settings.sim_options),
                        ComponentSpec("controller", settings.controller, settings.controller_options),
-                       tuple(scenarios), seeds, settings.log_images)
+                       tuple(scenarios), seeds, settings.log_images, batch)
     executor_name = settings.executor or ("process" if (settings.workers or 1) > 1 else "sequential")
     options = dict(settings.executor_options)
     if settings.address is not None:
@@ -197,6 +200,8 @@ def execute(settings: RunSettings, *, quiet: bool):
 @click.option("--executor-opt", multiple=True, metavar="KEY=VALUE", help="Executor option (repeatable).")
 @click.option("--workers", type=int, help="Parallel workers (process: default = CPU count, at most 8).")
 @click.option("--address", help="Cluster address for a distributed executor (e.g. --executor ray).")
+@click.option("--batch", help="Episodes advancing in lockstep through one model (default 1; part of the "
+                              "configuration: results may differ from unbatched in floating point).")
 @click.option("--config", "config_file", type=click.Path(dir_okay=False),
               help="TOML run configuration; command-line flags override it.")
 @click.option("--log-images", is_flag=True, help="Also log the camera images (PNG): the front image every step, each rig camera on /camera/NAME.")
@@ -218,7 +223,7 @@ def run_command(ctx: click.Context, config_file: str | None, quiet: bool, as_jso
     for flag in ("model", "sim", "controller", "executor"):
         if f"{flag}_opt" in given:
             given[f"{flag}_options"] = parse_options(given.pop(f"{flag}_opt"), f"--{flag}-opt")
-    for name in ("seeds", "workers", "seed_offset"):
+    for name in ("seeds", "workers", "seed_offset", "batch"):
         if name in given and given[name] is None:
             given.pop(name)
     settings = merge_settings(file_values, given)
@@ -275,7 +280,8 @@ def run_demo(out: Path, *, model: str | None = None, quiet: bool = False, worker
     settings = RunSettings(model=declared.name, controller=setup.get("controller", "pid"),
                            sim_options=dict(setup.get("sim_options", {})),
                            model_options=dict(setup.get("model_options", {})),
-                           scenarios=list(DEMO_SCENARIOS), seeds=DEMO_SEEDS, out=str(out), workers=workers)
+                           scenarios=list(DEMO_SCENARIOS), seeds=DEMO_SEEDS, out=str(out), workers=workers,
+                           batch=setup.get("batch", 1))
     return execute(settings, quiet=quiet)
 
 

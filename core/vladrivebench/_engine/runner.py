@@ -14,7 +14,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import traceback
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any
@@ -278,3 +278,183 @@ def decode_png(data: bytes) -> np.ndarray:
         raise VdbError("PNG uses row filters; only unfiltered PNGs from episode logs are supported")
     pixels = rows[:, 1:].reshape(height, width, channels)
     return pixels if channels == 3 else pixels[:, :, 0]
+
+
+# -- lockstep batches ---------------------------------------------------------------------------------
+BatchStepPolicy = Callable[[Any, Sequence[Observation], Sequence[int]], list[StepOutput]]
+"""``policy(model, observations, seeds) -> [(cot, trajectory, extras), …]`` for the episodes of one step."""
+
+
+def own_cot_batch_policy(model: Any, observations: Sequence[Observation], seeds: Sequence[int]
+                         ) -> list[StepOutput]:
+    """:func:`own_cot_policy` for several episodes in one batched call of a :class:`BatchedModel`.
+
+    Episode ``i`` draws from its own pinned streams ``step_rng(seeds[i], step, purpose, scenario)``.
+    """
+    cot_rngs = [step_rng(s, o.step, "cot", o.scenario_id) for o, s in zip(observations, seeds, strict=True)]
+    cots = model.generate_cot_batch(observations, cot_rngs)
+    action_rngs = [step_rng(s, o.step, "action", o.scenario_id) for o, s in zip(observations, seeds, strict=True)]
+    trajectories = model.decode_action_batch(observations, cots, action_rngs)
+    if len(cots) != len(observations) or len(trajectories) != len(observations):
+        raise ModelOutputError(f"batched model returned {len(cots)} CoTs and {len(trajectories)} trajectories "
+                               f"for {len(observations)} observations")
+    outputs = []
+    for cot, trajectory in zip(cots, trajectories, strict=True):
+        extras = model.cot_extras(cot) if isinstance(model, CoTExtras) else None
+        outputs.append((cot, trajectory, dict(extras or {})))
+    return outputs
+
+
+@dataclass
+class LockstepEpisode:
+    """One episode of a lockstep batch: what to run, where to log it (``writer``: an entered
+    :class:`~vladrivebench._logs.episodes.EpisodeWriter`-like object, or ``None`` for an episode run only
+    to keep its batch-mates' company), and ``key`` to tell the caller which one finished."""
+
+    key: Any
+    scenario: Any
+    seed: int
+    open_writer: Callable[[], Any] | None = None
+
+
+@dataclass
+class _Lane:
+    episode: LockstepEpisode
+    obs: Observation
+    writer: Any
+    simulator: Any
+    controller: Any
+    model: Any
+    tally: _Tally = field(default_factory=_Tally)
+    limit: int = 0
+
+
+LockstepDone = Callable[[LockstepEpisode, "EpisodeResult | EpisodeFailure", Any], None]
+"""``done(episode, result_or_failure, writer)``: called once per episode as it leaves the batch."""
+
+
+def run_lockstep(
+    episodes: Sequence[LockstepEpisode],
+    batch: int,
+    *,
+    make_lane: Callable[[int], tuple[Any, Any, Any]],
+    done: LockstepDone,
+    names: Mapping[str, str] | None = None,
+    batch_policy: BatchStepPolicy | None = None,
+) -> None:
+    """Run ``episodes`` with up to ``batch`` of them advancing step by step together.
+
+    ``make_lane(i)`` gives lane ``i``'s ``(model, simulator, controller)``; a :class:`BatchedModel` should be
+    the same instance in every lane (one batched call per step serves every lane), any other model one
+    instance per lane (it may keep per-episode memory; its per-episode methods are called). Episodes join
+    in order as lanes free up, lowest lane first; an episode that ends (or fails) leaves its lane and the
+    next one joins before the next step. The order of everything depends only on the episodes, so the same
+    episodes and batch size give the same calls, and each episode's log the same bytes. ``done`` receives
+    each episode's result or :class:`EpisodeFailure` (with its writer, still open, to finish or abandon).
+    """
+    names = {"model": "model", "simulator": "simulator", "controller": "controller", **(names or {})}
+    queue = list(episodes)
+    queue.reverse()
+    lanes: list[_Lane | None] = [None] * max(1, batch)
+    components: dict[int, tuple[Any, Any, Any]] = {}
+    while True:
+        _fill_lanes(lanes, queue, components, make_lane, names, done)
+        active = [(i, lane) for i, lane in enumerate(lanes) if lane is not None]
+        if not active:
+            return
+        outputs = _lockstep_outputs([lane for _, lane in active], names, batch_policy)
+        for (i, lane), output in zip(active, outputs, strict=True):
+            finished = _advance_lane(lane, output, names)
+            if finished is not None:
+                lanes[i] = None
+                if isinstance(finished, EpisodeFailure) and finished.component != "model":
+                    components.pop(i, None)  # ask make_lane again for that lane before its next episode
+                done(lane.episode, finished, lane.writer)
+
+
+def _fill_lanes(lanes: list[_Lane | None], queue: list[LockstepEpisode], components: dict[int, tuple],
+                make_lane: Callable[[int], tuple[Any, Any, Any]], names: Mapping[str, str],
+                done: LockstepDone) -> None:
+    for i in range(len(lanes)):
+        while lanes[i] is None and queue:
+            episode = queue.pop()
+            if i not in components:
+                components[i] = make_lane(i)
+            model, simulator, controller = components[i]
+            writer = None
+            try:
+                writer = episode.open_writer() if episode.open_writer else None
+                lanes[i] = _start_lane(episode, writer, model, simulator, controller, names)
+            except EpisodeFailure as failure:
+                components.pop(i, None)
+                done(episode, failure, writer)
+
+
+def _start_lane(episode: LockstepEpisode, writer: Any, model: Any, simulator: Any, controller: Any,
+                names: Mapping[str, str]) -> _Lane:
+    scenario_id = getattr(episode.scenario, "id", str(episode.scenario))
+    where = f"{scenario_id} seed {episode.seed}"
+    with _blame(names, "simulator", "reset", where, None):
+        obs = simulator.reset(episode.scenario, episode.seed)
+    with _blame(names, "model", "reset", where, None):
+        model.reset(episode.seed)
+    with _blame(names, "controller", "reset", where, None):
+        controller.reset()
+    return _Lane(episode, obs, writer, simulator, controller, model, limit=_default_step_limit(episode.scenario))
+
+
+def _lockstep_outputs(lanes: Sequence[_Lane], names: Mapping[str, str], batch_policy: BatchStepPolicy | None
+                      ) -> list[StepOutput | EpisodeFailure]:
+    """Every lane's (CoT, trajectory, extras) for this step: one batched call when the lanes share a
+    :class:`BatchedModel`, else each lane's own policy call. A failing call fails the lanes it served."""
+    from vladrivebench.protocols import BatchedModel
+
+    shared = lanes[0].model
+    if all(lane.model is shared for lane in lanes) and isinstance(shared, BatchedModel):
+        observations = [lane.obs for lane in lanes]
+        seeds = [lane.episode.seed for lane in lanes]
+        where = ", ".join(f"{_where(lane)}" for lane in lanes)
+        try:
+            with _blame(names, "model", "batched step policy", f"the batch {where}", lanes[0].obs.step):
+                return list((batch_policy or own_cot_batch_policy)(shared, observations, seeds))
+        except EpisodeFailure as failure:
+            return [failure] * len(lanes)
+    outputs: list[StepOutput | EpisodeFailure] = []
+    for lane in lanes:
+        try:
+            with _blame(names, "model", "step policy", _where(lane), lane.obs.step):
+                outputs.append(own_cot_policy(lane.model, lane.obs, lane.episode.seed))
+        except EpisodeFailure as failure:
+            outputs.append(failure)
+    return outputs
+
+
+def _where(lane: _Lane) -> str:
+    return f"{getattr(lane.episode.scenario, 'id', lane.episode.scenario)} seed {lane.episode.seed}"
+
+
+def _advance_lane(lane: _Lane, output: StepOutput | EpisodeFailure, names: Mapping[str, str]
+                  ) -> EpisodeResult | EpisodeFailure | None:
+    """Validate, control, log and step one lane; its result or failure if the episode ended."""
+    if isinstance(output, EpisodeFailure):
+        return output
+    obs, where, step = lane.obs, _where(lane), lane.obs.step
+    try:
+        cot, trajectory, extras = output
+        with _blame(names, "model", "step policy", where, step):
+            check_model_output(cot, trajectory, model_name=names["model"], step=step, where=where)
+        with _blame(names, "controller", "control", where, step):
+            control = lane.controller.control(trajectory, obs.ego, lane.simulator.dt)
+            _check_control(control)
+        if lane.writer is not None:
+            lane.writer.write_step(obs, cot, trajectory, control, extras)
+        lane.tally.add(obs)
+        if obs.ground_truth.terminal:
+            return lane.tally.result(obs.ground_truth.terminal)
+        if lane.tally.steps >= lane.limit:
+            return lane.tally.result("step_limit")
+        with _blame(names, "simulator", "step", where, step):
+            lane.obs = lane.simulator.step(control)
+    except EpisodeFailure as failure:
+        return failure
+    return None

@@ -65,9 +65,10 @@ class RunConfig:
     scenarios: tuple[Any, ...]
     seeds: tuple[int, ...]
     log_images: bool = False
+    batch: int = 1
 
     def to_json(self) -> dict[str, Any]:
-        return {
+        identity = {
             "model": self.model.to_json(),
             "simulator": self.simulator.to_json(),
             "controller": self.controller.to_json(),
@@ -76,6 +77,9 @@ class RunConfig:
             "seeds": list(self.seeds),
             "log_images": self.log_images,
         }
+        if self.batch != 1:  # batched results may differ in floating point: the batch size is configuration
+            identity["batch"] = self.batch  # (absent at 1, so unbatched runs keep their bytes)
+        return identity
 
 
 def scenario_digest(scenarios: Iterable[Any]) -> str:
@@ -91,6 +95,18 @@ def seed_list(count: Any, offset: Any = 0) -> tuple[int, ...]:
     if isinstance(offset, bool) or not isinstance(offset, int) or offset < 0:
         raise ConfigError(f"--seed-offset must be a whole number ≥ 0, got {offset!r}")
     return tuple(range(offset, offset + count))
+
+
+def batch_size(value: Any) -> int:
+    """A lockstep batch size (``--batch``): a whole number ≥ 1, else a one-line :class:`ConfigError`."""
+    if isinstance(value, str):
+        try:
+            value = int(value.strip())
+        except ValueError:
+            raise ConfigError(f"--batch must be a whole number ≥ 1 (episodes in lockstep), got {value!r}") from None
+    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        raise ConfigError(f"--batch must be a whole number ≥ 1 (episodes in lockstep), got {value!r}")
+    return value
 
 
 def episode_id(model: str, scenario_id: str, seed: int) -> str:
@@ -210,6 +226,8 @@ def release_components() -> None:
     """Close and drop every component this process built (end of an in-process sweep)."""
     for kind in list(_COMPONENTS):
         forget_component(kind)
+    for kind, lane in list(_LANES):
+        _forget_lane(kind, lane)
 
 
 def run_job(job: EpisodeJob) -> EpisodeOutcome:
@@ -243,6 +261,133 @@ def run_job(job: EpisodeJob) -> EpisodeOutcome:
         error, details = _describe_exception(exc)
         return outcome("failed", error=error, details=details)
     return outcome("ok", result=result.to_json())
+
+
+# -- lockstep batches (runs in a worker) --------------------------------------------------------------
+BATCH_JOB_FACTOR = 4
+"""A batch job holds up to ``BATCH_JOB_FACTOR × batch`` consecutive episodes of the sweep (scenario-major):
+``batch`` of them advance in lockstep and the next join as others end. The grouping depends only on the
+configuration, never on what is already done, so a resumed sweep gives every episode the same batch-mates."""
+
+
+@dataclass(frozen=True)
+class BatchJob:
+    """Episodes run in lockstep in one worker. ``todo`` names those to log; the others (complete or failed
+    before) are run again without a log only so that the batch is the same as in the first run."""
+
+    episodes: tuple[EpisodeJob, ...]
+    todo: frozenset[str]
+    batch: int
+
+    @property
+    def episode_id(self) -> str:  # what an executor names a failed job by
+        return ", ".join(sorted(self.todo))
+
+
+def make_batch_jobs(jobs: Sequence[EpisodeJob], todo: Sequence[EpisodeJob], batch: int) -> list[BatchJob]:
+    """The batch jobs holding at least one episode of ``todo`` (groups of consecutive ``jobs``)."""
+    wanted = {job.episode_id for job in todo}
+    size = BATCH_JOB_FACTOR * batch
+    groups = [tuple(jobs[i:i + size]) for i in range(0, len(jobs), size)]
+    return [BatchJob(group, frozenset(j.episode_id for j in group) & wanted, batch)
+            for group in groups if any(j.episode_id in wanted for j in group)]
+
+
+_LANES: dict[tuple[str, int], tuple[str, Any]] = {}
+
+
+def _lane_component(registry: Registry, spec: ComponentSpec, lane: int) -> Any:
+    """Lane ``lane``'s own instance of a component (lane 0 shares the process's cached one)."""
+    if lane == 0:
+        return _component(registry, spec)
+    key = f"{id(registry)}:{spec.key()}"
+    cached = _LANES.get((spec.kind, lane))
+    if cached is not None and cached[0] == key:
+        return cached[1]
+    _forget_lane(spec.kind, lane)
+    component = registry.create(spec.kind, spec.name, spec.options)
+    _LANES[(spec.kind, lane)] = (key, component)
+    return component
+
+
+def _forget_lane(kind: str, lane: int) -> None:
+    if lane == 0:
+        forget_component(kind)
+        return
+    cached = _LANES.pop((kind, lane), None)
+    close = getattr(cached[1], "close", None) if cached else None
+    if callable(close):
+        try:
+            close()
+        except Exception:
+            pass
+
+
+def run_batch_job(job: BatchJob) -> list[EpisodeOutcome]:
+    """Run a batch job's episodes in lockstep, each logged to its own file; never raises.
+
+    A :class:`~vladrivebench.BatchedModel` serves every lane with one instance and one batched call per
+    step; any other model gets an instance per lane and its per-episode methods (as without ``--batch``).
+    """
+    from vladrivebench._engine.runner import LockstepEpisode, run_lockstep
+    from vladrivebench.protocols import BatchedModel
+
+    started = time.perf_counter()
+    first = job.episodes[0]
+    outcomes: dict[str, EpisodeOutcome] = {}
+
+    def outcome(eid: str, status: str, **kw: Any) -> EpisodeOutcome:
+        return EpisodeOutcome(eid, status, seconds=time.perf_counter() - started, **kw)
+
+    try:
+        registry = _registry_for(first.registry)
+        shared = _component(registry, first.model)
+        batched = isinstance(shared, BatchedModel)
+        for spec in (first.simulator, first.controller):
+            _lane_component(registry, spec, 0)  # a configuration mistake shows before any episode starts
+    except VdbError as exc:
+        return [outcome(eid, "fatal", error=str(exc)) for eid in sorted(job.todo)]
+    except Exception as exc:
+        error, details = _describe_exception(exc)
+        return [outcome(eid, "failed", error=f"building the components raised {error}", details=details)
+                for eid in sorted(job.todo)]
+
+    def make_lane(lane: int) -> tuple[Any, Any, Any]:
+        model = shared if batched else _lane_component(registry, first.model, lane)
+        return model, _lane_component(registry, first.simulator, lane), _lane_component(registry, first.controller, lane)
+
+    def opener(ep: EpisodeJob) -> Callable[[], Any]:
+        def open_writer() -> Any:
+            meta = episode_meta(ep, shared, _lane_component(registry, ep.simulator, 0), registry)
+            return EpisodeWriter(ep.path, meta, log_images=ep.log_images).__enter__()
+        return open_writer
+
+    def done(episode: Any, finished: Any, writer: Any) -> None:
+        ep: EpisodeJob = episode.key
+        if ep.episode_id not in job.todo:
+            return
+        if isinstance(finished, EpisodeFailure):
+            if writer is not None:
+                writer.__exit__(EpisodeFailure, finished, None)
+            outcomes[ep.episode_id] = outcome(ep.episode_id, "failed", error=str(finished), details=finished.details,
+                                              step=finished.step, component=finished.component)
+            return
+        writer.finish(finished.to_json())
+        writer.__exit__(None, None, None)
+        outcomes[ep.episode_id] = outcome(ep.episode_id, "ok", result=finished.to_json())
+
+    episodes = [LockstepEpisode(ep, ep.scenario, ep.seed, opener(ep) if ep.episode_id in job.todo else None)
+                for ep in job.episodes]
+    names = {"model": first.model.name, "simulator": first.simulator.name, "controller": first.controller.name}
+    try:
+        run_lockstep(episodes, job.batch, make_lane=make_lane, done=done, names=names)
+    except Exception as exc:  # a writer or the loop itself broke: the episodes not yet done fail
+        error, details = _describe_exception(exc)
+        for eid in sorted(job.todo - set(outcomes)):
+            outcomes[eid] = outcome(eid, "failed", error=error, details=details)
+    if any(o.status == "failed" and o.component == "model" for o in outcomes.values()):
+        forget_component("model")
+    return [outcomes[eid] for eid in sorted(outcomes)]
 
 
 def episode_meta(job: EpisodeJob, model: Any, simulator: Any, registry: Registry | None = None) -> dict[str, Any]:
@@ -367,7 +512,12 @@ def run_sweep(config: RunConfig, out: Path | str, *, executor: Any, executor_inf
     summary = SweepSummary(out, jobs, results, failures, skipped=len(jobs) - len(todo))
     _remove_stale_partials(out / EPISODES_DIR)
     try:
-        _execute(executor, todo, summary, out, on_outcome)
+        if config.batch > 1:
+            by_id = {job.episode_id: job for job in todo}
+            _execute(executor, make_batch_jobs(jobs, todo, config.batch), summary, out, on_outcome,
+                     worker=run_batch_job, by_id=by_id)
+        else:
+            _execute(executor, todo, summary, out, on_outcome)
     finally:
         if in_process:
             release_components()
@@ -392,13 +542,13 @@ def _plan(jobs: list[EpisodeJob], failures: dict[str, dict], retry_failed: bool
     return todo, results
 
 
-def _execute(executor: Any, todo: list[EpisodeJob], summary: SweepSummary, out: Path,
-             on_outcome: OutcomeCallback | None) -> None:
-    by_id = {job.episode_id: job for job in todo}
-    stream = executor.run(run_job, todo)
+def _execute(executor: Any, todo: Sequence[Any], summary: SweepSummary, out: Path,
+             on_outcome: OutcomeCallback | None, *, worker: Callable[[Any], Any] = run_job,
+             by_id: Mapping[str, EpisodeJob] | None = None) -> None:
+    by_id = by_id if by_id is not None else {job.episode_id: job for job in todo}
+    stream = executor.run(worker, todo)
     try:
-        for item in stream:
-            outcome = _as_outcome(item)
+        for outcome in (o for item in stream for o in _as_outcomes(item)):
             if outcome.status == "fatal":
                 raise VdbError(outcome.error or "a component could not be built")
             summary.ran += 1
@@ -409,18 +559,23 @@ def _execute(executor: Any, todo: list[EpisodeJob], summary: SweepSummary, out: 
                 summary.failures[outcome.episode_id] = _failure_entry(by_id.get(outcome.episode_id), outcome)
                 write_failures(out, summary.failures)
             if on_outcome is not None:
-                on_outcome(outcome, summary.ran, len(todo))
+                on_outcome(outcome, summary.ran, len(by_id))
     finally:
         close = getattr(stream, "close", None)
         if callable(close):
             close()
 
 
-def _as_outcome(item: Any) -> EpisodeOutcome:
+def _as_outcomes(item: Any) -> list[EpisodeOutcome]:
+    """A worker's result as outcomes: one (an episode job), a list (a batch job), or failures of every
+    episode a crashed job held."""
     if isinstance(item, EpisodeOutcome):
+        return [item]
+    if isinstance(item, list) and all(isinstance(o, EpisodeOutcome) for o in item):
         return item
     if isinstance(item, JobFailure):
-        return EpisodeOutcome(item.job.episode_id, "failed", error=item.error, details=item.details)
+        ids = sorted(item.job.todo) if isinstance(item.job, BatchJob) else [item.job.episode_id]
+        return [EpisodeOutcome(eid, "failed", error=item.error, details=item.details) for eid in ids]
     raise TypeError(f"executor returned {type(item).__name__}, expected the worker's result or a JobFailure")
 
 

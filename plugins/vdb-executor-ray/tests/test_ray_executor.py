@@ -110,3 +110,19 @@ def test_registration_does_not_import_ray():
             "r = Registry([('ray', plugin)], entry_points=False); print(r.names('executor'), 'ray' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "['ray'] False"
+
+
+@pytest.mark.parametrize("model", ["echo-batched", "echo"])
+def test_batched_sweep_on_ray_gives_the_same_bytes_as_sequential(local_ray, tmp_path, model):
+    registry = Registry([core_plugin(), ("fakes", fakes), ("ray", plugin)], entry_points=False)
+    config = RunConfig(ComponentSpec("model", model), ComponentSpec("simulator", "line"),
+                       ComponentSpec("controller", "speed"), fakes.SCENARIOS, (0, 1), batch=2)
+    run_sweep(config, tmp_path / "seq", executor=SequentialExecutor(), registry=registry)
+    executor = registry.create("executor", "ray", {"workers": 2})
+    summary = run_sweep(config, tmp_path / "ray", executor=executor, registry=registry)
+    assert summary.ran == 6 and not summary.failures
+
+    def files(directory):
+        return {p.name: p.read_bytes() for p in sorted((directory / "episodes").iterdir())}
+
+    assert files(tmp_path / "seq") == files(tmp_path / "ray")

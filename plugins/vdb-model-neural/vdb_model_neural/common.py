@@ -302,7 +302,10 @@ class BundledModel:
     name: str
     network_class: type
 
-    def __init__(self, splice_mode: str = "sequential", weights_dir: str | None = None, threads: int = 1):
+    device = "cpu"
+
+    def __init__(self, splice_mode: str = "sequential", weights_dir: str | None = None, threads: int = 1,
+                 device: str = "cpu"):
         from vdb_adapter_transformers.toolkit import SPLICE_MODES
 
         if splice_mode not in SPLICE_MODES:
@@ -316,7 +319,8 @@ class BundledModel:
         config, codec, tensors = load_bundle(self.name, directory)
         network = self.network_class(config)
         load_state(self.name, network, tensors, directory)
-        self._setup(network.eval(), codec, splice_mode)
+        self.device = _check_device(self.name, device)
+        self._setup(network.to(self.device).eval(), codec, splice_mode)
 
     @classmethod
     def from_network(cls, network: nn.Module, codec: TextCodec, splice_mode: str = "sequential"):
@@ -326,3 +330,21 @@ class BundledModel:
 
     def _setup(self, network: nn.Module, codec: TextCodec, splice_mode: str) -> None:
         raise NotImplementedError
+
+
+def _check_device(model: str, device: Any) -> str:
+    """A torch device the model can run on (``cpu``, ``cuda``, ``cuda:1``, ``mps``), else a one-line error.
+
+    The lockstep-batched methods move their inputs to the device; on a device other than ``cpu`` the
+    per-episode methods run as a batch of one (so results are those of ``--batch``, up to floating point).
+    """
+    try:
+        parsed = torch.device(str(device))
+    except (RuntimeError, TypeError):
+        raise ConfigError(f"model {model!r} option device={device!r} is not a torch device "
+                          f"(expected cpu, cuda, cuda:N or mps)") from None
+    if parsed.type == "cuda" and not torch.cuda.is_available():
+        raise ConfigError(f"model {model!r} option device={device!r}: this torch has no CUDA device")
+    if parsed.type == "mps" and not torch.backends.mps.is_available():
+        raise ConfigError(f"model {model!r} option device={device!r}: this torch has no MPS device")
+    return str(parsed)

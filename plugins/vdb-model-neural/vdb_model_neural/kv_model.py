@@ -19,6 +19,7 @@ from torch.nn import functional as F
 from vdb_adapter_transformers import toolkit
 from vladrivebench import ConfigError, CoT, CoTFormat, Observation, Trajectory, TrajectorySpec
 
+from . import batching
 from .common import (
     BundledModel,
     ModelConfig,
@@ -103,7 +104,7 @@ class KVNetwork(nn.Module):
         """Integrate the flow from ``noise`` ``(B, T, 2)`` with Euler steps → normalised controls."""
         x, steps = noise, self.config.flow_steps
         for i in range(steps):
-            t = torch.full((x.shape[0],), i / steps)
+            t = torch.full((x.shape[0],), i / steps, device=x.device)
             x = x + self.head(x, t, kv, key_mask) / steps
         return x
 
@@ -145,8 +146,9 @@ class KVState:
 
 
 class KVModel(BundledModel):
-    """The ``kv`` reference VLA (VLAModel protocol). Options: ``splice_mode`` (``sequential`` or
-    ``prefill``), ``weights_dir`` (a folder with ``kv.safetensors`` & co.), ``threads``."""
+    """The ``kv`` reference VLA (VLAModel and BatchedModel protocols). Options: ``splice_mode``
+    (``sequential`` or ``prefill``), ``weights_dir`` (a folder with ``kv.safetensors`` & co.), ``threads``,
+    ``device`` (``cpu`` by default; e.g. ``cuda``)."""
 
     name = "kv"
 
@@ -167,6 +169,8 @@ class KVModel(BundledModel):
 
     def generate_cot(self, obs: Observation, rng: np.random.Generator) -> CoT:
         """Greedy CoT between ``<cot>`` and ``</cot>`` (``rng`` is not needed by greedy decoding)."""
+        if self.device != "cpu":
+            return self.generate_cot_batch([obs], [rng])[0]
         ids = self.codec.ids
         tokens, state = toolkit.generate_between_markers(
             self.network.lm, self.prefix_state(obs), ids["<cot>"], ids["</cot>"], self.config.max_cot_tokens,
@@ -176,6 +180,8 @@ class KVModel(BundledModel):
 
     def splice_cot(self, obs: Observation, text: str | dict[str, str], rng: np.random.Generator) -> CoT:
         """Re-encode ``text`` into the cache between the markers (sequential or prefill mode)."""
+        if self.device != "cpu":
+            return self.splice_cot_batch([obs], [text], [rng])[0]
         if not isinstance(text, str):
             raise ConfigError(f"model 'kv' writes one sentence; a splice needs one text, got slots "
                               f"{', '.join(text)}")
@@ -185,8 +191,54 @@ class KVModel(BundledModel):
                                       ids["</cot>"], mode=self.splice_mode, what="model 'kv' splice text")
         return CoT(text=text, state=KVState(state, tuple(tokens)), spliced=True)
 
+    # -- lockstep batches (BatchedModel) --------------------------------------------------------------
+    def generate_cot_batch(self, observations: list[Observation], rngs: list[np.random.Generator]) -> list[CoT]:
+        """Greedy CoTs for B observations: one vision-prefix pass and one decoder pass per token for all."""
+        ids = self.codec.ids
+        decoder = self._lockstep_prefix(observations)
+        texts = batching.generate_lockstep(decoder, ids["<cot>"], ids["</cot>"], self.config.max_cot_tokens,
+                                           banned=self.codec.special_ids)
+        return [CoT(text=self.codec.decode(t), state=KVState(decoder.row_state(i, t), tuple(t)))
+                for i, t in enumerate(texts)]
+
+    def splice_cot_batch(self, observations: list[Observation], texts: list[str],
+                         rngs: list[np.random.Generator]) -> list[CoT]:
+        """``splice_cot`` for B observations, column by column exactly as :meth:`generate_cot_batch` feeds
+        them: splicing a batch's own CoTs gives bit-identical caches."""
+        ids, token_lists = self.codec.ids, []
+        for text in texts:
+            if not isinstance(text, str):
+                raise ConfigError(f"model 'kv' writes one sentence; a splice needs one text, got slots "
+                                  f"{', '.join(text)}")
+            token_lists.append(self.codec.encode(text))
+        decoder = self._lockstep_prefix(observations)
+        batching.splice_lockstep(decoder, token_lists, ids["<cot>"], ids["</cot>"])
+        return [CoT(text=text, state=KVState(decoder.row_state(i, t), tuple(t)), spliced=True)
+                for i, (text, t) in enumerate(zip(texts, token_lists, strict=True))]
+
+    def decode_action_batch(self, observations: list[Observation], cots: list[CoT],
+                            rngs: list[np.random.Generator]) -> list[Trajectory]:
+        """``decode_action`` for B (observation, CoT) pairs in one flow integration over a padded cache;
+        row i's noise comes from ``rngs[i]`` exactly as alone."""
+        states = [self._state_of(obs, cot).decoder for obs, cot in zip(observations, cots, strict=True)]
+        kv, key_mask = batching.padded_cache(states)
+        noise = torch.cat([self.noise(rng, 1) for rng in rngs]).to(self.device)
+        controls = self.network.sample_controls(kv, key_mask, noise).cpu().numpy()
+        dt = 1.0 / self.config.rate_hz
+        return [controls_to_trajectory(c.astype(np.float64), obs.ego.speed, dt)
+                for c, obs in zip(controls, observations, strict=True)]
+
+    @torch.no_grad()
+    def _lockstep_prefix(self, observations: list[Observation]) -> batching.LockstepDecoder:
+        images = image_batch([o.image for o in observations]).to(self.device)
+        ego = ego_features([o.ego.speed for o in observations], [o.command for o in observations]).to(self.device)
+        return batching.LockstepDecoder(self.network.lm, self.network.prefix_embeddings(images, ego),
+                                        self.codec.ids["<pad>"])
+
     def decode_action(self, obs: Observation, cot: CoT, rng: np.random.Generator) -> Trajectory:
         """Sample controls with noise from ``rng`` (pinned), roll them out into waypoints."""
+        if self.device != "cpu":
+            return self.decode_action_batch([obs], [cot], [rng])[0]
         state = self._state_of(obs, cot)
         noise = self.noise(rng, 1)
         controls = self.network.sample_controls(state.decoder.keys_values(), None, noise)[0].numpy()

@@ -8,18 +8,20 @@ from __future__ import annotations
 import vladrivebench
 
 
-def make_kv(splice_mode: str = "sequential", weights_dir: str | None = None, threads: int = 1):
-    """The Alpamayo-like ``kv`` model (options: splice_mode=sequential|prefill, weights_dir, threads)."""
+def make_kv(splice_mode: str = "sequential", weights_dir: str | None = None, threads: int = 1,
+            device: str = "cpu"):
+    """The Alpamayo-like ``kv`` model (options: splice_mode=sequential|prefill, weights_dir, threads, device)."""
     from .kv_model import KVModel
 
-    return KVModel(splice_mode=splice_mode, weights_dir=weights_dir, threads=threads)
+    return KVModel(splice_mode=splice_mode, weights_dir=weights_dir, threads=threads, device=device)
 
 
-def make_qa(splice_mode: str = "sequential", weights_dir: str | None = None, threads: int = 1):
-    """The ORION-like ``qa`` model (options: splice_mode=sequential|prefill, weights_dir, threads)."""
+def make_qa(splice_mode: str = "sequential", weights_dir: str | None = None, threads: int = 1,
+            device: str = "cpu"):
+    """The ORION-like ``qa`` model (options: splice_mode=sequential|prefill, weights_dir, threads, device)."""
     from .qa_model import QAModel
 
-    return QAModel(splice_mode=splice_mode, weights_dir=weights_dir, threads=threads)
+    return QAModel(splice_mode=splice_mode, weights_dir=weights_dir, threads=threads, device=device)
 
 
 @vladrivebench.hookimpl
@@ -38,5 +40,6 @@ def register_commands(cli):
 @vladrivebench.hookimpl
 def register_defaults(register):
     # it sees only the camera, so the camera is rendered; it was trained with the MPC tracker
-    register("demo", "kv", priority=10, controller="mpc", sim_options={}, model_options={},
+    # its 8 episodes advance in lockstep through one model (vdb run --batch 8): one batched call per step
+    register("demo", "kv", priority=10, controller="mpc", sim_options={}, model_options={}, batch=8,
              about="the neural kv model (Alpamayo-like, trained here), camera only")

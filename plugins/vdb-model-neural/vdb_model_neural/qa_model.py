@@ -26,6 +26,7 @@ from torch import nn
 from vdb_adapter_transformers import toolkit
 from vladrivebench import ConfigError, CoT, CoTFormat, Observation, Trajectory, TrajectorySpec
 
+from . import batching
 from .common import (
     BundledModel,
     ModelConfig,
@@ -84,7 +85,8 @@ class QAState:
 
 
 class QAModel(BundledModel):
-    """The ``qa`` reference VLA (VLAModel protocol). Options: ``splice_mode``, ``weights_dir``, ``threads``."""
+    """The ``qa`` reference VLA (VLAModel and BatchedModel protocols). Options: ``splice_mode``,
+    ``weights_dir``, ``threads``, ``device`` (``cpu`` by default; e.g. ``cuda``)."""
 
     name = "qa"
 
@@ -107,6 +109,8 @@ class QAModel(BundledModel):
 
     def generate_cot(self, obs: Observation, rng: np.random.Generator) -> CoT:
         """Three greedy QA rounds, then the planning token."""
+        if self.device != "cpu":
+            return self.generate_cot_batch([obs], [rng])[0]
         ids, lm = self.codec.ids, self.network.lm
         state = self.prefix_state(obs)
         slots, token_ids = {}, {}
@@ -120,9 +124,9 @@ class QAModel(BundledModel):
 
     def splice_cot(self, obs: Observation, text: str | dict[str, str], rng: np.random.Generator) -> CoT:
         """Replace the three answers with ``text`` (slot → text), then the planning token."""
-        if isinstance(text, str) or set(text) != set(SLOTS):
-            got = "one text" if isinstance(text, str) else f"slots {', '.join(text) or 'none'}"
-            raise ConfigError(f"model 'qa' takes slots {', '.join(SLOTS)}; the splice gave {got}")
+        _check_slots(text)
+        if self.device != "cpu":
+            return self.splice_cot_batch([obs], [text], [rng])[0]
         ids, lm = self.codec.ids, self.network.lm
         state = self.prefix_state(obs)
         token_ids = {}
@@ -145,10 +149,66 @@ class QAModel(BundledModel):
 
     def decode_action(self, obs: Observation, cot: CoT, rng: np.random.Generator) -> Trajectory:
         """Waypoints from the planning token's hidden state (deterministic: ``rng`` is not used)."""
+        if self.device != "cpu":
+            return self.decode_action_batch([obs], [cot], [rng])[0]
         state = self._state_of(obs, cot)
         with torch.no_grad():
             controls = self.network.plan(state.decoder.last_hidden, state.vision)[0].numpy().astype(np.float64)
         return controls_to_trajectory(controls, obs.ego.speed, 1.0 / self.config.rate_hz)
+
+    # -- lockstep batches (BatchedModel) --------------------------------------------------------------
+    def generate_cot_batch(self, observations: list[Observation], rngs: list[np.random.Generator]) -> list[CoT]:
+        """Three greedy QA rounds for B observations in lockstep (one pass per question, one per token)."""
+        ids = self.codec.ids
+        decoder, vision = self._lockstep_prefix(observations)
+        answers: dict[str, list[list[int]]] = {}
+        for slot in SLOTS:
+            decoder.feed_block(self.questions[slot])
+            answers[slot] = batching.generate_lockstep(decoder, ids["<a>"], ids["</a>"], self.config.max_cot_tokens,
+                                                       banned=self.codec.special_ids)
+        decoder.feed([ids["<plan>"]] * decoder.rows)
+        return [self._batch_cot(decoder, vision, i, {s: answers[s][i] for s in SLOTS}, None)
+                for i in range(decoder.rows)]
+
+    def splice_cot_batch(self, observations: list[Observation], texts: list[dict[str, str]],
+                         rngs: list[np.random.Generator]) -> list[CoT]:
+        """``splice_cot`` for B observations, fed exactly as :meth:`generate_cot_batch` feeds its rounds:
+        splicing a batch's own answers gives bit-identical states."""
+        for text in texts:
+            _check_slots(text)
+        ids = self.codec.ids
+        tokens = [{slot: self.codec.encode(text[slot]) for slot in SLOTS} for text in texts]
+        decoder, vision = self._lockstep_prefix(observations)
+        for slot in SLOTS:
+            decoder.feed_block(self.questions[slot])
+            batching.splice_lockstep(decoder, [t[slot] for t in tokens], ids["<a>"], ids["</a>"])
+        decoder.feed([ids["<plan>"]] * decoder.rows)
+        return [self._batch_cot(decoder, vision, i, tokens[i], texts[i]) for i in range(decoder.rows)]
+
+    def decode_action_batch(self, observations: list[Observation], cots: list[CoT],
+                            rngs: list[np.random.Generator]) -> list[Trajectory]:
+        """``decode_action`` for B pairs with one planner call."""
+        states = [self._state_of(obs, cot) for obs, cot in zip(observations, cots, strict=True)]
+        hidden = torch.cat([s.decoder.last_hidden for s in states])
+        vision = torch.cat([s.vision for s in states])
+        with torch.no_grad():
+            controls = self.network.plan(hidden, vision).cpu().numpy().astype(np.float64)
+        dt = 1.0 / self.config.rate_hz
+        return [controls_to_trajectory(c, obs.ego.speed, dt) for c, obs in zip(controls, observations, strict=True)]
+
+    def _batch_cot(self, decoder: batching.LockstepDecoder, vision: torch.Tensor, row: int,
+                   token_ids: dict[str, list[int]], spliced: dict[str, str] | None) -> CoT:
+        slots = dict(spliced) if spliced is not None else {s: self.codec.decode(token_ids[s]) for s in SLOTS}
+        fed = tuple(t for s in SLOTS for t in token_ids[s])
+        state = QAState(decoder.row_state(row, fed), {s: tuple(token_ids[s]) for s in SLOTS}, vision[row:row + 1])
+        return CoT(text=CoT.join_slots(slots), slots=slots, state=state, spliced=spliced is not None)
+
+    @torch.no_grad()
+    def _lockstep_prefix(self, observations: list[Observation]) -> tuple[batching.LockstepDecoder, torch.Tensor]:
+        images = image_batch([o.image for o in observations]).to(self.device)
+        ego = ego_features([o.ego.speed for o in observations], [o.command for o in observations]).to(self.device)
+        embeds = self.network.prefix_embeddings(images, ego)
+        return batching.LockstepDecoder(self.network.lm, embeds, self.codec.ids["<pad>"]), embeds
 
     def state_digest(self, cot: CoT) -> str:
         """SHA-256 of the cache and of the planner's inputs (planning token's hidden state, vision tokens)."""
@@ -180,3 +240,9 @@ class QAModel(BundledModel):
         if isinstance(cot.state, QAState):
             return cot.state
         return self.splice_cot(obs, cot.slots, np.random.default_rng(0)).state
+
+
+def _check_slots(text: object) -> None:
+    if isinstance(text, str) or not isinstance(text, dict) or set(text) != set(SLOTS):
+        got = "one text" if isinstance(text, str) else f"slots {', '.join(text) or 'none'}"
+        raise ConfigError(f"model 'qa' takes slots {', '.join(SLOTS)}; the splice gave {got}")

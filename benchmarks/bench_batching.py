@@ -1,0 +1,155 @@
+"""Lockstep batches (`vdb run --batch B`): closed-loop throughput, harness share, batched-vs-unbatched
+difference and the demo's wall time, all measured in one run.
+
+    python benchmarks/bench_batching.py [--steps 20] [--sizes 1,4,16,64] [--sweep-seconds 5] [--skip-sweep]
+                                        [--skip-demo]
+
+1. Closed-loop steps per second of ``kv`` and ``qa`` on the kinematic simulator (camera rendered, MPC
+   controller, every step logged to MCAP) at B = 1 (today's per-episode path, ``run_episode``) and at
+   B = 4, 16, 64 in lockstep (``run_lockstep``, one batched model call per step); the speed-up against B = 1.
+2. The harness (simulator, rendering, control, logging: everything but the model's batched calls) as a
+   share of a batched step.
+3. The largest waypoint difference between a sweep run at B = 1 and at B = 16 (the demo's scenarios ×
+   4 seeds with ``kv``, each cut to ``--sweep-seconds``), over the steps both runs share, and how many
+   CoTs differ.
+4. ``vdb demo``'s wall time (its episodes, as the demo declares its batch size).
+
+The machine may be shared: read the ratios of one run rather than absolute numbers.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+
+def scenario(name: str, seconds: float):
+    from vladrivebench._engine.registry import get_registry
+    from vladrivebench._scenarios.spec import load_suite
+
+    return dataclasses.replace(load_suite(get_registry())[name], max_time_s=seconds)
+
+
+def closed_loop(model_name: str, batch: int, steps: int, out: Path) -> tuple[float, float]:
+    """(episode steps per second, share of the wall time outside the model) for ``batch`` episodes."""
+    from vladrivebench._engine.registry import get_registry
+    from vladrivebench._engine.runner import LockstepEpisode, own_cot_batch_policy, run_episode, run_lockstep
+    from vladrivebench._logs.episodes import EpisodeWriter
+
+    registry = get_registry()
+    model = registry.create("model", model_name)
+    road = scenario("P.1", steps / 10.0)
+    lanes = [(registry.create("simulator", "kinematic"), registry.create("controller", "mpc")) for _ in range(batch)]
+    model_time = [0.0]
+
+    def timed_policy(model, observations, seeds):
+        started = time.perf_counter()
+        try:
+            return own_cot_batch_policy(model, observations, seeds)
+        finally:
+            model_time[0] += time.perf_counter() - started
+
+    def writer(i: int):
+        return EpisodeWriter(out / f"{model_name}-{batch}-{i}.mcap", {"episode_id": str(i)})
+
+    results = []
+
+    def done(episode, result, open_writer):
+        open_writer.finish(result.to_json())
+        results.append(result)
+
+    started = time.perf_counter()
+    if batch == 1:
+        from vladrivebench._engine.runner import own_cot_policy
+
+        def timed_single(model, obs, seed):
+            t0 = time.perf_counter()
+            try:
+                return own_cot_policy(model, obs, seed)
+            finally:
+                model_time[0] += time.perf_counter() - t0
+
+        with writer(0) as w:
+            result = run_episode(model, *lanes[0], road, 0, policy=timed_single, writer=w)
+            w.finish(result.to_json())
+        results.append(result)
+    else:
+        episodes = [LockstepEpisode(i, road, i, (lambda i=i: writer(i).__enter__())) for i in range(batch)]
+        run_lockstep(episodes, batch, make_lane=lambda i: (model, *lanes[i]), done=done, batch_policy=timed_policy)
+    wall = time.perf_counter() - started
+    total_steps = sum(r.steps for r in results)
+    return total_steps / wall, 1.0 - model_time[0] / wall
+
+
+def sweep_difference(batch: int, seconds_per_episode: float) -> tuple[float, int, int, float, float]:
+    """(largest waypoint difference in m, differing CoTs, compared steps, seconds at B=1, at B=batch)."""
+    from vladrivebench._engine.executors import SequentialExecutor
+    from vladrivebench._engine.registry import get_registry
+    from vladrivebench._engine.sweep import ComponentSpec, RunConfig, run_sweep
+    from vladrivebench._logs.episodes import read_episode
+
+    registry = get_registry()
+    scenarios = tuple(scenario(s, seconds_per_episode) for s in ("P.1", "C.1", "TL.1-red", "E.1"))
+    seconds = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for b in (1, batch):
+            config = RunConfig(ComponentSpec("model", "kv"), ComponentSpec("simulator", "kinematic"),
+                               ComponentSpec("controller", "mpc"), scenarios, (0, 1, 2, 3), batch=b)
+            started = time.perf_counter()
+            run_sweep(config, Path(tmp) / f"b{b}", executor=SequentialExecutor(), registry=registry)
+            seconds[b] = time.perf_counter() - started
+        worst, differing, compared = 0.0, 0, 0
+        for path in sorted((Path(tmp) / "b1" / "episodes").glob("*.mcap")):
+            a = read_episode(path).steps
+            b = read_episode(Path(tmp) / f"b{batch}" / "episodes" / path.name).steps
+            for x, y in zip(a, b, strict=False):
+                compared += 1
+                differing += x.cot["text"] != y.cot["text"]
+                worst = max(worst, float(np.max(np.abs(np.asarray(x.trajectory["xy"]) - np.asarray(y.trajectory["xy"])))))
+    return worst, differing, compared, seconds[1], seconds[batch]
+
+
+def demo_seconds() -> float:
+    from vladrivebench._cli.run import run_demo
+
+    with tempfile.TemporaryDirectory() as tmp:
+        started = time.perf_counter()
+        run_demo(Path(tmp) / "demo", quiet=True)
+        return time.perf_counter() - started
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--steps", type=int, default=20, help="steps per episode in part 1")
+    parser.add_argument("--sizes", default="1,4,16,64")
+    parser.add_argument("--skip-sweep", action="store_true")
+    parser.add_argument("--sweep-seconds", type=float, default=5.0, help="episode length limit in part 3")
+    parser.add_argument("--skip-demo", action="store_true")
+    args = parser.parse_args()
+    sizes = [int(s) for s in args.sizes.split(",")]
+    with tempfile.TemporaryDirectory() as tmp:
+        for model in ("kv", "qa"):
+            base = model_base = None
+            for batch in sizes:
+                rate, harness = closed_loop(model, batch, args.steps, Path(tmp))
+                model_rate = rate / (1.0 - harness)  # episode-steps per second of model time alone
+                base, model_base = base or rate, model_base or model_rate
+                print(f"{model} B={batch:>3}: {rate:7.1f} episode-steps/s  ×{rate / base:5.2f} vs B={sizes[0]}  "
+                      f"(model time alone ×{model_rate / model_base:5.2f})  harness {100 * harness:4.1f} % of the step",
+                      flush=True)
+    if not args.skip_sweep:
+        worst, differing, compared, one, sixteen = sweep_difference(16, args.sweep_seconds)
+        print(f"kv sweep (P.1, C.1, TL.1-red, E.1 × 4 seeds, ≤ {args.sweep_seconds:g} s each) B=1 vs B=16: largest waypoint difference "
+              f"{worst:.3g} m over {compared} shared steps, {differing} CoTs differ; {one:.1f} s vs {sixteen:.1f} s",
+              flush=True)
+    if not args.skip_demo:
+        print(f"vdb demo (its declared batch): {demo_seconds():.1f} s", flush=True)
+
+
+if __name__ == "__main__":
+    main()
