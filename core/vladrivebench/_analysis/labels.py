@@ -248,7 +248,7 @@ _CONTEXT_KINDS = {"critical_kind": (str, type(None)), "light_state": (str, type(
 def read_jsonl(path: Path | str, *, need_labels: bool = False) -> list[JsonlItem]:
     """Read a JSONL file of CoTs (see the field documentation in the labeler guide).
 
-    Each line: ``id`` (string or number; defaults to the line number), ``text`` (string) and/or ``slots``
+    Each line: ``id`` (string or number, required), ``text`` (string) and/or ``slots``
     (object slot → string; when ``text`` is missing it is the slots joined in order), ``context`` (object:
     ``critical_kind``, ``critical_position``, ``light_state``, ``actors``, ``ego_speed``, …) and optionally
     ``labels``. Every problem is one :class:`ConfigError` naming the file and line.
@@ -282,7 +282,9 @@ def read_jsonl(path: Path | str, *, need_labels: bool = False) -> list[JsonlItem
 def _jsonl_item(data: Any, number: int, where: str, need_labels: bool) -> JsonlItem:
     if not isinstance(data, dict):
         raise ConfigError(f"{where}: expected a JSON object, got {type(data).__name__}")
-    ident = data.get("id", number)
+    if "id" not in data:  # never numbered silently: an edited file would match other items
+        raise ConfigError(f"{where}: missing \"id\" (a string or an integer, unique within the file)")
+    ident = data["id"]
     if not isinstance(ident, (str, int)) or isinstance(ident, bool):
         raise ConfigError(f"{where}: id must be a string or an integer")
     slots = data.get("slots") or {}

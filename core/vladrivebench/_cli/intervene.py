@@ -33,6 +33,8 @@ def parse_seconds(text: str, flag: str) -> tuple[float, ...]:
         raise ConfigError(f"{flag} {text!r}: expected seconds separated by commas, e.g. {flag} 2,3") from None
     if not values:
         raise ConfigError(f"{flag} {text!r}: expected at least one number of seconds")
+    if not all(0 < v < 1e6 for v in values):  # nan and inf fail this too
+        raise ConfigError(f"{flag} {text!r}: expected seconds > 0, e.g. {flag} 2,3")
     return values
 
 
@@ -71,7 +73,14 @@ def build_config(opts: dict[str, Any], registry: Any) -> Any:
     mode = opts["mode"]
     routes = tuple(resolve_scenarios(list(parse_names(opts["route"], "--route")), registry))
     harvest = resolve_scenarios(opts["harvest_route"], registry)[0] if opts["harvest_route"] else None
-    conditions = parse_names(opts["conditions"] or DEFAULT_CONDITIONS.get(mode, "selfsplice"), "--conditions")
+    given = opts["conditions"]  # an empty --conditions '' is refused, not read as the default
+    conditions = parse_names(given if given is not None else DEFAULT_CONDITIONS.get(mode, "selfsplice"),
+                             "--conditions")
+    checkpoints = parse_seconds(opts["checkpoints"], "--checkpoints")
+    longest = min(route.max_time_s for route in routes)
+    if mode == "closed-loop" and (beyond := [t for t in checkpoints if t >= longest]):
+        raise ConfigError(f"--checkpoints {opts['checkpoints']!r}: {beyond[0]:g} s is not within the route's "
+                          f"episode ({longest:g} s); expected checkpoints below {longest:g} s")
     return InterventionConfig(
         mode=mode,
         model=ComponentSpec("model", opts["model"], parse_options(opts["model_opt"], "--model-opt")),
@@ -81,7 +90,7 @@ def build_config(opts: dict[str, Any], registry: Any) -> Any:
                                  parse_options(opts["controller_opt"], "--controller-opt")),
         routes=routes, conditions=conditions, seeds=seed_list(opts["seeds"], opts["seed_offset"]),
         horizons=parse_seconds(opts["horizons"], "--horizons"),
-        checkpoints=parse_seconds(opts["checkpoints"], "--checkpoints"),
+        checkpoints=checkpoints,
         threshold=opts["threshold"], alpha=opts["alpha"], harvest_route=harvest,
         condition_files=tuple(str(Path(f)) for f in opts["condition_file"]),
         batch_conditions=opts["batch_conditions"],
