@@ -282,10 +282,8 @@ def read_jsonl(path: Path | str, *, need_labels: bool = False) -> list[JsonlItem
 def _jsonl_item(data: Any, number: int, where: str, need_labels: bool) -> JsonlItem:
     if not isinstance(data, dict):
         raise ConfigError(f"{where}: expected a JSON object, got {type(data).__name__}")
-    if "id" not in data:  # never numbered silently: an edited file would match other items
-        raise ConfigError(f"{where}: missing \"id\" (a string or an integer, unique within the file)")
-    ident = data["id"]
-    if not isinstance(ident, (str, int)) or isinstance(ident, bool):
+    ident = data.get("id")
+    if "id" in data and (not isinstance(ident, (str, int)) or isinstance(ident, bool)):
         raise ConfigError(f"{where}: id must be a string or an integer")
     slots = data.get("slots") or {}
     if not isinstance(slots, dict) or not all(isinstance(k, str) and isinstance(v, str) for k, v in slots.items()):
@@ -304,6 +302,8 @@ def _jsonl_item(data: Any, number: int, where: str, need_labels: bool) -> JsonlI
         value = context.get(name)
         if name in context and (not isinstance(value, kinds) or isinstance(value, bool)):
             raise ConfigError(f"{where}: context.{name} has the wrong type ({type(value).__name__})")
+    if "id" not in data:  # never numbered silently: an edited file would match other items
+        raise ConfigError(f"{where}: missing \"id\" (a string or an integer, unique within the file)")
     labels = None
     if "labels" in data:
         labels = labels_from_json(data["labels"], f"{where}: labels")

@@ -498,13 +498,14 @@ def _episode_meta(path: Path, metadata: Mapping[str, str]) -> dict:
 
 
 def _damage(exc: BaseException) -> str:
-    """``corrupt (CRC mismatch)`` when a checksum failed, ``truncated`` when the bytes ran out, else ``corrupt``."""
+    """``corrupt (CRC mismatch)`` when a checksum failed, ``truncated`` when the bytes ran out early."""
     text = f"{type(exc).__name__} {exc}".lower()
     if "crc" in text:
         return "corrupt (CRC mismatch)"
-    if isinstance(exc, EOFError) or any(w in text for w in ("eof", "end of", "truncat", "not enough", "unexpected end")):
+    if isinstance(exc, EOFError) or any(w in text for w in ("endoffile", "eof", "end of", "truncat", "not enough",
+                                                            "requires a buffer")):
         return "truncated"
-    return "corrupt"
+    return "corrupt or truncated"
 
 
 def read_result(path: Path | str) -> dict | None:
