@@ -528,11 +528,10 @@ def check_output_directory(out: Path) -> None:
         if parent.exists() and not parent.is_dir():
             what = "is a file" if parent == out else f"is under {parent}, which is a file"
             raise ConfigError(f"--out {out}: {what}; expected a directory")
-    for parent in out.parents:
-        if (parent / MANIFEST_NAME).is_file() or parent.name == EPISODES_DIR and (parent.parent / MANIFEST_NAME).is_file():
-            run = parent if (parent / MANIFEST_NAME).is_file() else parent.parent
-            raise ConfigError(f"--out {out}: inside the run directory {run}, which this command does not own; "
-                              f"use a directory outside it")
+    run = next((parent for parent in out.parents if (parent / MANIFEST_NAME).is_file()), None)
+    if run is not None:
+        raise ConfigError(f"--out {out}: inside the run directory {run}, which this command does not own; "
+                          f"use a directory outside it")
     episodes = out / EPISODES_DIR
     if episodes.exists() and not episodes.is_dir():
         raise ConfigError(f"--out {out}: {episodes} is a file; expected the directory of episode logs")
