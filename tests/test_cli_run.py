@@ -94,15 +94,17 @@ def test_retry_failed_flag(tmp_path, capsys):
 @pytest.mark.parametrize(
     ("args", "expected"),
     [
-        (["--seeds", 0], "--seeds must be a whole number ≥ 1 (seeds 0 … N−1), got 0"),
-        (["--seeds", -3], "--seeds must be a whole number ≥ 1"),
+        (["--seeds", 0], "--seeds must be a whole number from 1 to 100,000 (seeds 0 … N−1), got 0"),
+        (["--seeds", 10**12], "--seeds must be a whole number from 1 to 100,000"),
+        (["--seeds", -3], "--seeds must be a whole number from 1"),
         (["--seeds", "two"], "'two' is not a valid integer"),
-        (["--seeds", 2, "--seed-offset", -1], "--seed-offset must be a whole number ≥ 0"),
+        (["--seeds", 2, "--seed-offset", -1], "--seed-offset must be a whole number from 0"),
         (["--seeds", 2, "--model-opt", "cruise"], "--model-opt 'cruise': expected key=value"),
         (["--seeds", 2, "--model-opt", "temperature=1"], "model 'echo' does not take option 'temperature'"),
         (["--seeds", 2, "--executor", "rayy"], "unknown executor 'rayy'"),
         (["--seeds", 2, "--address", "10.0.0.1:6379"], "executor 'sequential' does not take option 'address'"),
-        (["--seeds", 2, "--workers", 0], "workers must be a whole number ≥ 1, got 0"),
+        (["--seeds", 2, "--workers", 0], "--workers must be a whole number from 1 to 512, got 0"),
+            (["--seeds", 2, "--executor", "sequential", "--workers", 2], "--executor sequential runs one episode"),
         (["--seeds", 2, "--model-opt", "cruise=-1"], "model 'echo': cruise must be ≥ 0, got -1"),
     ],
 )

@@ -128,7 +128,7 @@ def test_bad_labels_are_one_line_errors(data, message):
 def test_jsonl_round_trip(tmp_path):
     src = tmp_path / "in.jsonl"
     src.write_text('{"id": "a", "text": "Stop.", "context": {"critical_kind": null}}\n'
-                   '{"slots": {"scene": "Clear.", "decision": "Go."}, "note": "mine"}\n')
+                   '{"id": 2, "slots": {"scene": "Clear.", "decision": "Go."}, "note": "mine"}\n')
     items = read_jsonl(src)
     assert [i.id for i in items] == ["a", "2"] and items[1].item.text == "Clear. Go."
     out = tmp_path / "out.jsonl"

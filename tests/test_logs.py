@@ -184,7 +184,7 @@ def test_unfinished_writer_leaves_only_a_partial_file(tmp_path):
     writer._file.flush()
     assert not path.exists()
     assert writer.partial_path.name == f"ep.mcap.{os.getpid()}.partial"
-    with pytest.raises(LogError, match="corrupt or truncated"):
+    with pytest.raises(LogError, match="truncated"):
         read_episode(writer.partial_path)
     writer.__exit__(None, None, None)
 
@@ -231,7 +231,7 @@ def test_any_corrupted_byte_is_detected(tmp_path_factory, where, flip):
 def test_not_an_mcap_file(tmp_path):
     path = tmp_path / "notes.mcap"
     path.write_text("hello")
-    with pytest.raises(LogError, match="corrupt or truncated"):
+    with pytest.raises(LogError, match="truncated"):
         read_episode(path)
     with pytest.raises(LogError, match="no such file"):
         read_episode(tmp_path / "missing.mcap")

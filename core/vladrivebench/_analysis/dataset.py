@@ -8,6 +8,7 @@ saying so; a corrupt or incompatible one is left out with a note naming the file
 from __future__ import annotations
 
 import math
+import os
 from collections import Counter
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
@@ -171,6 +172,8 @@ def read_directory(directory: Path | str, *, strict: bool = False) -> tuple[list
 
     episodes, notes = [], []
     paths = find_episodes(directory)
+    notes += [f"left out {_relative(p, directory)}: a link to {os.readlink(p)}, which does not exist"
+              for p in sorted(Path(directory).rglob("*.mcap")) if p.is_symlink() and not p.exists()]
     for path in paths:
         try:
             episodes.append(read_episode(path))

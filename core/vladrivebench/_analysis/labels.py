@@ -276,7 +276,7 @@ _CONTEXT_KINDS = {"critical_kind": (str, type(None)), "light_state": (str, type(
 def read_jsonl(path: Path | str, *, need_labels: bool = False) -> list[JsonlItem]:
     """Read a JSONL file of CoTs (see the field documentation in the labeler guide).
 
-    Each line: ``id`` (string or number; defaults to the line number), ``text`` (string) and/or ``slots``
+    Each line: ``id`` (string or number, required), ``text`` (string) and/or ``slots``
     (object slot → string; when ``text`` is missing it is the slots joined in order), ``context`` (object:
     ``critical_kind``, ``critical_position``, ``light_state``, ``actors``, ``ego_speed``, …) and optionally
     ``labels``. Every problem is one :class:`ConfigError` naming the file and line.
@@ -310,8 +310,8 @@ def read_jsonl(path: Path | str, *, need_labels: bool = False) -> list[JsonlItem
 def _jsonl_item(data: Any, number: int, where: str, need_labels: bool) -> JsonlItem:
     if not isinstance(data, dict):
         raise ConfigError(f"{where}: expected a JSON object, got {type(data).__name__}")
-    ident = data.get("id", number)
-    if not isinstance(ident, (str, int)) or isinstance(ident, bool):
+    ident = data.get("id")
+    if "id" in data and (not isinstance(ident, (str, int)) or isinstance(ident, bool)):
         raise ConfigError(f"{where}: id must be a string or an integer")
     slots = data.get("slots") or {}
     if not isinstance(slots, dict) or not all(isinstance(k, str) and isinstance(v, str) for k, v in slots.items()):
@@ -330,6 +330,8 @@ def _jsonl_item(data: Any, number: int, where: str, need_labels: bool) -> JsonlI
         value = context.get(name)
         if name in context and (not isinstance(value, kinds) or isinstance(value, bool)):
             raise ConfigError(f"{where}: context.{name} has the wrong type ({type(value).__name__})")
+    if "id" not in data:  # never numbered silently: an edited file would match other items
+        raise ConfigError(f"{where}: missing \"id\" (a string or an integer, unique within the file)")
     labels = None
     if "labels" in data:
         labels = labels_from_json(data["labels"], f"{where}: labels")

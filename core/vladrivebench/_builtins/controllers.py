@@ -36,6 +36,31 @@ MAX_CURVATURE = math.tan(MAX_WHEEL_ANGLE) / WHEELBASE
 """The tightest path curvature (1/m) the vehicle can drive."""
 
 
+def _option_number(name: str, value: object, *, low: float, high: float = math.inf,
+                   low_open: bool = True) -> float:
+    """``value`` as a float within (``low``, ``high``] (``[low, high]`` unless ``low_open``), or a ValueError
+    naming the option and what it takes."""
+    ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+    if ok:
+        ok = (value > low if low_open else value >= low) and value <= high
+    if not ok:
+        bracket = "(" if low_open else "["
+        upper = "∞)" if high == math.inf else f"{high:g}]"
+        raise ValueError(f"option {name!r} must be a number in {bracket}{low:g}, {upper}, got {value!r}")
+    return float(value)
+
+
+def _option_numbers(name: str, value: object, count: int, *, low: float = 0.0, low_open: bool = False,
+                    increasing: bool = False) -> tuple[float, ...]:
+    """``value`` as ``count`` numbers ≥ ``low`` (a list like ``[0.5, 1.0]``), or a ValueError naming it."""
+    if not isinstance(value, (list, tuple)) or len(value) != count:
+        raise ValueError(f"option {name!r} must be a list of {count} numbers (e.g. {name}=[0.5,1.0]), got {value!r}")
+    numbers = tuple(_option_number(f"{name}[{i}]", v, low=low, low_open=low_open) for i, v in enumerate(value))
+    if increasing and any(b <= a for a, b in zip(numbers, numbers[1:], strict=False)):
+        raise ValueError(f"option {name!r} must be increasing (start < end), got {list(value)!r}")
+    return numbers
+
+
 # -- reading a trajectory -------------------------------------------------------------------------------
 def _timed_path(trajectory: Trajectory) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Times, points and cumulative arc length of the trajectory with the ego (origin, t = 0) prepended."""
@@ -120,14 +145,17 @@ class PIDController:
                  brake_time: float | None = None, aim_distance: float = 4.0,
                  speed_gains: tuple[float, float, float] = (0.6, 0.05, 0.0),
                  steer_gains: tuple[float, float, float] = (2.0, 0.1, 0.05)):
-        self.speed_window = (float(speed_window[0]), float(speed_window[1]))
-        self.max_speed, self.max_throttle = max_speed, max_throttle
-        self.stop_speed, self.overspeed_ratio = stop_speed, overspeed_ratio
+        self.speed_window = _option_numbers("speed_window", speed_window, 2, increasing=True)
+        self.max_speed = _option_number("max_speed", max_speed, low=0.0, high=60.0)
+        self.max_throttle = _option_number("max_throttle", max_throttle, low=0.0, high=1.0)
+        self.stop_speed = _option_number("stop_speed", stop_speed, low=0.0, low_open=False)
+        self.overspeed_ratio = _option_number("overspeed_ratio", overspeed_ratio, low=1.0, low_open=False)
         # By default the excess speed is shed by the middle of the window the desired speed is read from.
-        self.brake_time = brake_time if brake_time is not None else 0.5 * sum(self.speed_window)
-        self.aim_distance = aim_distance
-        self._speed_pid = PID(*speed_gains)
-        self._steer_pid = PID(*steer_gains)
+        self.brake_time = (_option_number("brake_time", brake_time, low=0.0) if brake_time is not None
+                           else 0.5 * sum(self.speed_window))
+        self.aim_distance = _option_number("aim_distance", aim_distance, low=0.0)
+        self._speed_pid = PID(*_option_numbers("speed_gains", speed_gains, 3))
+        self._steer_pid = PID(*_option_numbers("steer_gains", steer_gains, 3))
 
     def reset(self) -> None:
         self._speed_pid.reset()
@@ -193,11 +221,14 @@ class MPCController:
     def __init__(self, *, horizon_steps: int = 20, max_accel: float = THROTTLE_ACCEL,
                  max_decel: float = BRAKE_DECEL, max_curvature: float = MAX_CURVATURE,
                  max_speed: float = MAX_SPEED, min_preview: float = 8.0, weights: MPCWeights | None = None):
-        if horizon_steps < 1:
-            raise ValueError(f"horizon_steps must be at least 1, got {horizon_steps}")
+        if isinstance(horizon_steps, bool) or not isinstance(horizon_steps, int) or not 1 <= horizon_steps <= 1000:
+            raise ValueError(f"option 'horizon_steps' must be a whole number from 1 to 1000, got {horizon_steps!r}")
         self.horizon_steps = int(horizon_steps)
-        self.max_accel, self.max_decel = max_accel, max_decel
-        self.max_curvature, self.max_speed = max_curvature, max_speed
+        self.max_accel = _option_number("max_accel", max_accel, low=0.0)
+        self.max_decel = _option_number("max_decel", max_decel, low=0.0)
+        self.max_curvature = _option_number("max_curvature", max_curvature, low=0.0)
+        self.max_speed = _option_number("max_speed", max_speed, low=0.0, high=60.0)
+        min_preview = _option_number("min_preview", min_preview, low=0.0, low_open=False)
         self.weights = weights or MPCWeights()
         self.min_preview = min_preview
         self._last_accel = 0.0

@@ -85,6 +85,10 @@ def label_command(directory: Path | None, labeler_name: str | None, labeler_opts
         raise ConfigError("vdb label: give either a DIRECTORY of episode logs or --texts FILE.jsonl --out FILE.jsonl")
     if texts is not None and out is None and not dry_run:
         raise ConfigError("vdb label --texts: --out FILE.jsonl is required (where the labelled CoTs go)")
+    if texts is not None and out is not None:
+        from vladrivebench._cli.paths import check_output_file
+
+        check_output_file(out, "--out", inputs=[texts])
     if directory is not None and out is not None:
         raise ConfigError("vdb label: --out goes with --texts; labels of a directory are stored in DIRECTORY/labels/")
     options = parse_options(labeler_opts, "--labeler-opt")
@@ -209,8 +213,10 @@ def metrics_command(directory: Path, labeler: str | None, as_json: bool, strict:
 def report_command(directory: Path, fmt: str, out: Path, labeler: str | None, strict: bool) -> None:
     """Write a report (the paper's tables side by side per model, and plots) of the logs in DIRECTORY."""
     from vladrivebench._analysis.report import compute_all, write_report
+    from vladrivebench._cli.paths import check_output_file
     from vladrivebench._engine.registry import get_registry
 
+    check_output_file(out, "--out", runs=[directory])
     dataset = _dataset(directory, labeler, strict)
     sections = compute_all(dataset, get_registry(), strict=strict)
     written = write_report(dataset, sections, fmt, out)

@@ -100,10 +100,16 @@ def build_config(opts: dict[str, Any], registry: Any) -> Any:
     paradigm = build_paradigm(registry, mode, paradigm_options)
     routes = tuple(resolve_scenarios(list(parse_names(opts["route"], "--route")), registry))
     harvest = resolve_scenarios(opts["harvest_route"], registry)[0] if opts["harvest_route"] else None
-    if opts["conditions"]:
-        conditions = parse_names(opts["conditions"], "--conditions")
+    given = opts["conditions"]  # an empty --conditions '' is refused, not read as the default
+    if given is not None:
+        conditions = parse_names(given, "--conditions")
     else:
         conditions = tuple(paradigm.default_conditions) or ("selfsplice",)
+    checkpoints = parse_seconds(opts["checkpoints"], "--checkpoints")
+    longest = min(route.max_time_s for route in routes)
+    if mode == "closed-loop" and (beyond := [t for t in checkpoints if t >= longest]):
+        raise ConfigError(f"--checkpoints {opts['checkpoints']!r}: {beyond[0]:g} s is not within the route's "
+                          f"episode ({longest:g} s); expected checkpoints below {longest:g} s")
     return InterventionConfig(
         mode=mode, paradigm_options=paradigm_options,
         model=ComponentSpec("model", opts["model"], parse_options(opts["model_opt"], "--model-opt")),
@@ -113,7 +119,7 @@ def build_config(opts: dict[str, Any], registry: Any) -> Any:
                                  parse_options(opts["controller_opt"], "--controller-opt")),
         routes=routes, conditions=conditions, seeds=seed_list(opts["seeds"], opts["seed_offset"]),
         horizons=parse_seconds(opts["horizons"], "--horizons"),
-        checkpoints=parse_seconds(opts["checkpoints"], "--checkpoints"),
+        checkpoints=checkpoints,
         threshold=opts["threshold"], alpha=opts["alpha"], harvest_route=harvest,
         condition_files=tuple(str(Path(f)) for f in opts["condition_file"]),
         batch_conditions=opts["batch_conditions"],

@@ -10,6 +10,7 @@ from __future__ import annotations
 import importlib
 import json
 import sys
+import warnings
 
 import click
 
@@ -56,16 +57,23 @@ def _strict(ctx: click.Context | None) -> bool | None:
 @click.group(cls=VdbGroup, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(__version__, prog_name="vdb")
 @click.option("--strict-plugins", is_flag=True, help="Fail if any plugin fails to load (default: report and go on).")
-def cli(strict_plugins: bool) -> None:
+@click.pass_context
+def cli(ctx: click.Context, strict_plugins: bool) -> None:
     """VLADriveBench: is a driving VLA's chain-of-thought about the world, and connected to its action?"""
     get_registry(strict=strict_plugins or None)
+    if strict_plugins:  # every plugin hook runs now, so that any failing one stops the command
+        ctx.command._add_plugin_commands(ctx)
 
 
 @cli.command("list-plugins")
 @click.option("--json", "as_json", is_flag=True, help="Print the listing as JSON.")
 def list_plugins(as_json: bool) -> None:
     """List every plugin: name, kind, distribution, version, status and what it registered."""
+    from vladrivebench._scenarios.spec import check_scenario_packs
+
     registry = get_registry()
+    click.get_current_context().find_root().command._add_plugin_commands(None)  # failures show below
+    check_scenario_packs(registry)
     if as_json:
         click.echo(json.dumps([p.to_json() for p in registry.plugins], indent=2))
         return
@@ -103,7 +111,18 @@ _add_command_modules()
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of the console script: one-line errors, exit status 2 for user errors."""
+    """Entry point of the console script: one-line errors, exit status 2 for user errors.
+
+    Third-party warnings (transformers, statsmodels, …) are not printed unless Python was asked to show
+    them (``python -W …`` or ``PYTHONWARNINGS``), so a refused command prints its one line and nothing else.
+    """
+    with warnings.catch_warnings():
+        if not sys.warnoptions:
+            warnings.simplefilter("ignore")
+        return _main(argv)
+
+
+def _main(argv: list[str] | None) -> int:
     try:
         outcome = cli.main(args=argv, prog_name="vdb", standalone_mode=False)
     except VdbError as exc:
@@ -126,8 +145,20 @@ def main(argv: list[str] | None = None) -> int:
         return 130
     except BrokenPipeError:
         return 0
+    except OSError as exc:  # a path the command could not read or write: name it, no traceback
+        _error(_describe_os_error(exc))
+        return 2
+    except MemoryError:
+        _error("out of memory: the request is too large for this machine (fewer seeds, scenarios or workers)")
+        return 2
     # without standalone mode, click returns the code of a `ctx.exit(n)` (or the command's return value)
     return outcome if isinstance(outcome, int) else 0
+
+
+def _describe_os_error(exc: OSError) -> str:
+    where = " → ".join(str(name) for name in (exc.filename, exc.filename2) if name)
+    reason = exc.strerror or str(exc) or type(exc).__name__
+    return f"{where}: {reason}" if where else reason
 
 
 def _error(message: str) -> None:

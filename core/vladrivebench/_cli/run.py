@@ -115,6 +115,7 @@ def build_request(settings: RunSettings, registry: Any):
                        ComponentSpec("controller", settings.controller, settings.controller_options),
                        tuple(scenarios), seeds, settings.log_images, batch)
     executor_name = settings.executor or ("process" if (settings.workers or 1) > 1 else "sequential")
+    _check_workers(executor_name, settings.workers)
     options = dict(settings.executor_options)
     if settings.address is not None:
         options["address"] = settings.address
@@ -122,6 +123,19 @@ def build_request(settings: RunSettings, registry: Any):
     check_options("executor", executor_name, registry.get("executor", executor_name).factory, options)
     executor = registry.create("executor", executor_name, options)
     return config, executor, {"name": executor_name, **options}
+
+
+def _check_workers(executor_name: str, workers: Any) -> None:
+    if workers is None:
+        return
+    if isinstance(workers, bool) or not isinstance(workers, int) or not 1 <= workers <= MAX_WORKERS:
+        raise ConfigError(f"--workers must be a whole number from 1 to {MAX_WORKERS}, got {workers!r}")
+    if executor_name == "sequential" and workers != 1:
+        raise ConfigError(f"--executor sequential runs one episode at a time; got --workers {workers} "
+                          f"(use --executor process for parallel workers)")
+
+
+MAX_WORKERS = 512
 
 
 def _default_workers(executor_name: str) -> int:

@@ -47,6 +47,8 @@ def load_toml(path: Path | str, what: str = "configuration file") -> dict[str, A
         raise ConfigError(f"{what} {path}: no such file") from None
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{what} {path}: not valid TOML ({exc})") from None
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"{what} {path}: not UTF-8 text (byte {exc.start}); TOML files are UTF-8") from None
     except OSError as exc:
         raise ConfigError(f"{what} {path}: cannot read ({exc.strerror})") from None
 
@@ -59,8 +61,12 @@ def load_data_file(path: Path | str, what: str) -> dict[str, Any]:
             data = json.loads(path.read_text(encoding="utf-8"))
         except FileNotFoundError:
             raise ConfigError(f"{what} {path}: no such file") from None
-        except (ValueError, UnicodeDecodeError) as exc:
+        except UnicodeDecodeError as exc:
+            raise ConfigError(f"{what} {path}: not UTF-8 text (byte {exc.start}); JSON files are UTF-8") from None
+        except ValueError as exc:
             raise ConfigError(f"{what} {path}: not valid JSON ({exc})") from None
+        except OSError as exc:
+            raise ConfigError(f"{what} {path}: cannot read ({exc.strerror})") from None
         if not isinstance(data, dict):
             raise ConfigError(f"{what} {path}: expected a JSON object at the top level")
         return data

@@ -146,7 +146,9 @@ class Registry:
             return
         try:
             obj = ep.load()
-        except Exception as exc:  # any import-time failure of a third-party plugin is isolated
+        except KeyboardInterrupt:
+            raise
+        except BaseException as exc:  # any import-time failure (sys.exit() too) of a plugin is isolated
             self._fail(PluginInfo(ep.name, dist, version), f"cannot import {ep.value}: {_describe(exc)}")
             return
         self.add_plugin(ep.name, obj, distribution=dist, version=version)
@@ -158,7 +160,9 @@ class Registry:
             return self._fail(info, f"a plugin named {name!r} is already loaded")
         try:
             self.manager.register(obj, name=name)
-        except Exception as exc:
+        except KeyboardInterrupt:
+            raise
+        except BaseException as exc:
             return self._fail(info, f"invalid plugin: {_describe(exc)}")
         try:
             self.manager.check_pending()
@@ -172,7 +176,9 @@ class Registry:
                     if impl.plugin_name == name:
                         impl.function(register=self._collector(kind, info, staged))
             declared = self._collect_defaults(name, info, staged)
-        except Exception as exc:
+        except KeyboardInterrupt:
+            raise
+        except BaseException as exc:
             self.manager.unregister(name=name)
             return self._fail(info, f"failed while registering: {_describe(exc)}")
         self._defaults.extend(declared)
@@ -196,9 +202,12 @@ class Registry:
                     raise ValueError(f"{kind} {name_or_path!r} needs a callable factory")
                 comp = Component(kind, name_or_path, factory, info.name, info.distribution, description)
             owner = self._components[kind].get(comp.name)
-            if owner is not None or any(c.kind == kind and c.name == comp.name for c in staged):
-                by = owner.plugin if owner else info.name
-                raise ValueError(f"{kind} {comp.name!r} is already registered by plugin {by!r}")
+            if owner is not None:
+                raise ValueError(f"{kind} {comp.name!r} is already registered by plugin {owner.plugin!r} "
+                                 f"({owner.distribution}), which keeps it; plugin {info.name!r} "
+                                 f"({info.distribution}) must use another name")
+            if any(c.kind == kind and c.name == comp.name for c in staged):
+                raise ValueError(f"{kind} {comp.name!r} is registered twice by plugin {info.name!r}")
             staged.append(comp)
 
         return register
@@ -241,6 +250,9 @@ class Registry:
         try:
             return self._components[kind][name]
         except KeyError:
+            if name in self.disabled:
+                raise ConfigError(f"{kind} {name!r} is disabled ({DISABLE_ENV}={','.join(sorted(self.disabled))}); "
+                                  f"remove it from {DISABLE_ENV} to use it") from None
             raise UnknownNameError(kind, name, self.names(kind)) from None
 
     def create(self, kind: str, name: str, options: Mapping[str, Any] | None = None) -> Any:
@@ -262,10 +274,13 @@ class Registry:
         for impl in getattr(self.manager.hook, hook_name).get_hookimpls():
             try:
                 results.append(impl.function(**kwargs))
-            except Exception as exc:
+            except KeyboardInterrupt:
+                raise
+            except BaseException as exc:  # sys.exit() in a plugin's hook too: reported, never the process's end
                 info = next((p for p in self.plugins if p.name == impl.plugin_name), None)
+                where = f"{impl.plugin_name!r} ({info.distribution})" if info else repr(impl.plugin_name)
                 if self.strict:
-                    raise PluginLoadError(f"plugin {impl.plugin_name!r}: {hook_name} failed: {_describe(exc)}") from None
+                    raise PluginLoadError(f"plugin {where}: {hook_name} failed: {_describe(exc)}") from None
                 if info is not None:
                     info.status, info.error = "error", f"{hook_name} failed: {_describe(exc)}"
         return results
@@ -334,7 +349,9 @@ def _entry_points() -> list[metadata.EntryPoint]:
     eps = metadata.entry_points(group=ENTRY_POINT_GROUP)
     seen: set[tuple[str, str]] = set()
     unique = []
-    for ep in sorted(eps, key=lambda e: (e.name != "core", e.name)):
+    # The core first, then by distribution name and entry-point name: which plugin keeps a contested name
+    # never depends on the order sys.path lists the distributions in.
+    for ep in sorted(eps, key=lambda e: (e.name != "core", (e.dist.name if e.dist else "").lower(), e.name)):
         key = (ep.name, ep.value)
         if key not in seen:  # the same distribution found twice on sys.path
             seen.add(key)

@@ -21,6 +21,7 @@ import json
 import os
 import platform
 import re
+import tempfile
 import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -88,12 +89,18 @@ def scenario_digest(scenarios: Iterable[Any]) -> str:
     return hashlib.sha256(text.encode("utf-8")).hexdigest()
 
 
+MAX_SEEDS = 100_000
+"""The most seeds one sweep takes (every seed is an episode log; more is a mistyped number)."""
+MAX_SEED = 2**53
+"""Seeds stay exact in JSON (and in every reader's double)."""
+
+
 def seed_list(count: Any, offset: Any = 0) -> tuple[int, ...]:
     """Seeds ``offset … offset+count−1``; a one-line :class:`ConfigError` for a bad count or offset."""
-    if isinstance(count, bool) or not isinstance(count, int) or count < 1:
-        raise ConfigError(f"--seeds must be a whole number ≥ 1 (seeds 0 … N−1), got {count!r}")
-    if isinstance(offset, bool) or not isinstance(offset, int) or offset < 0:
-        raise ConfigError(f"--seed-offset must be a whole number ≥ 0, got {offset!r}")
+    if isinstance(count, bool) or not isinstance(count, int) or not 1 <= count <= MAX_SEEDS:
+        raise ConfigError(f"--seeds must be a whole number from 1 to {MAX_SEEDS:,} (seeds 0 … N−1), got {count!r}")
+    if isinstance(offset, bool) or not isinstance(offset, int) or not 0 <= offset <= MAX_SEED - count:
+        raise ConfigError(f"--seed-offset must be a whole number from 0 to {MAX_SEED - count}, got {offset!r}")
     return tuple(range(offset, offset + count))
 
 
@@ -501,11 +508,13 @@ def run_sweep(config: RunConfig, out: Path | str, *, executor: Any, executor_inf
     for spec in components:
         check_options(spec.kind, spec.name, registry.get(spec.kind, spec.name).factory, spec.options)
     out = Path(out)
+    check_output_directory(out)
+    in_process = bool(getattr(executor, "in_process", False))
+    build_components(registry, components, keep=in_process)
     versions = collect_versions(registry, components)
     manifest = {"format": MANIFEST_FORMAT, "config": config.to_json(), "versions": versions,
                 "executor": dict(executor_info or {})}
     prepare_out(out, manifest)
-    in_process = bool(getattr(executor, "in_process", False))
     jobs = make_jobs(config, out, versions, registry if in_process else RegistrySpec.of(registry))
     failures = load_failures(out)
     todo, results = _plan(jobs, failures, retry_failed)
@@ -526,11 +535,48 @@ def run_sweep(config: RunConfig, out: Path | str, *, executor: Any, executor_inf
     return summary
 
 
+def build_components(registry: Registry, components: Sequence[ComponentSpec], *, keep: bool) -> None:
+    """Build every component once before anything is written, so that an option value its factory refuses
+    (``alpha=2``, ``max_speed=-1``) is one line and no run directory; ``keep`` them for an in-process sweep."""
+    try:
+        for spec in components:
+            try:
+                _component(registry, spec)
+            except VdbError:
+                raise
+            except Exception as exc:  # the factory refused its options: one line naming them
+                options = ", ".join(f"{k}={v!r}" for k, v in spec.options.items()) or "no options"
+                reason = " ".join(str(exc).split()) or type(exc).__name__
+                if not isinstance(exc, (ValueError, TypeError)):
+                    reason = f"{type(exc).__name__}: {reason}"
+                raise ConfigError(f"{spec.kind} {spec.name!r} ({options}) cannot be built: {reason}") from None
+    finally:
+        if not keep:
+            release_components()
+
+
+def trusted_result(path: str) -> dict | None:
+    """The result of a complete log whose every record passes its CRC, else ``None`` (the episode is redone).
+
+    :func:`read_result` reads the summary only; a log edited or damaged after it was written must not be
+    counted as complete, so the whole file is checked before the result is trusted."""
+    from vladrivebench._logs.episodes import read_episode
+    from vladrivebench.errors import LogError
+
+    if not os.path.exists(path) or read_result(path) is None:
+        return None
+    try:
+        episode = read_episode(path)
+    except LogError:
+        return None
+    return episode.result
+
+
 def _plan(jobs: list[EpisodeJob], failures: dict[str, dict], retry_failed: bool
           ) -> tuple[list[EpisodeJob], dict[str, dict]]:
     todo, results = [], {}
     for job in jobs:
-        result = read_result(job.path) if os.path.exists(job.path) else None
+        result = trusted_result(job.path)
         if result is not None:
             results[job.episode_id] = result
             failures.pop(job.episode_id, None)
@@ -608,24 +654,67 @@ def make_jobs(config: RunConfig, out: Path, versions: Mapping[str, str],
 # -- the output directory -----------------------------------------------------------------------------
 def prepare_out(out: Path, manifest: Mapping[str, Any]) -> None:
     """Check ``out`` can hold this run (resume or new) and write the manifest if it is new."""
+    check_output_directory(out)
     path = out / MANIFEST_NAME
     if path.exists():
-        try:
-            previous = json.loads(path.read_text(encoding="utf-8"))
-        except (OSError, ValueError) as exc:
-            raise ConfigError(f"{path}: unreadable run manifest ({exc}); use another --out") from None
+        previous = read_manifest(path)
         for section in ("config", "versions"):
             difference = first_difference(previous.get(section), _plain(manifest[section]), section)
             if difference:
                 raise ConfigError(f"{out} holds a run with a different configuration ({difference}); "
                                   f"repeat that run's command to resume it, or use another --out")
         return
+    if out.exists() and out.is_dir() and not _writable(out):
+        raise ConfigError(f"--out {out}: cannot write in this directory (read-only); use another --out")
     episodes = out / EPISODES_DIR
     if episodes.is_dir() and any(episodes.iterdir()):
         raise ConfigError(f"{out} holds episode logs but no {MANIFEST_NAME}: not a run this command can "
                           f"resume; use another --out")
     episodes.mkdir(parents=True, exist_ok=True)
     write_json_atomic(path, manifest)
+
+
+def read_manifest(path: Path) -> dict[str, Any]:
+    """A run's ``run.json``: a JSON object with ``config`` and ``versions`` objects, or a one-line error."""
+    try:
+        previous = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as exc:
+        raise ConfigError(f"{path}: unreadable run manifest ({' '.join(str(exc).split())}); use another --out") from None
+    if not isinstance(previous, dict) or not all(isinstance(previous.get(k), dict) for k in ("config", "versions")):
+        raise ConfigError(f"{path}: not a run manifest (expected a JSON object with 'config' and 'versions' "
+                          f"objects); use another --out")
+    return previous
+
+
+def check_output_directory(out: Path) -> None:
+    """One line if ``out`` cannot be a run directory: a file, under a file, inside another run, read-only."""
+    for parent in [out, *out.parents]:
+        if parent.exists() and not parent.is_dir():
+            what = "is a file" if parent == out else f"is under {parent}, which is a file"
+            raise ConfigError(f"--out {out}: {what}; expected a directory")
+    run = next((parent for parent in out.parents if (parent / MANIFEST_NAME).is_file()), None)
+    if run is not None:
+        raise ConfigError(f"--out {out}: inside the run directory {run}, which this command does not own; "
+                          f"use a directory outside it")
+    episodes = out / EPISODES_DIR
+    if episodes.exists() and not episodes.is_dir():
+        raise ConfigError(f"--out {out}: {episodes} is a file; expected the directory of episode logs")
+    existing = next(p for p in [out, *out.parents] if p.exists())
+    if not _writable(existing):
+        raise ConfigError(f"--out {out}: cannot write in {existing} (read-only); use another --out")
+
+
+def _writable(directory: Path) -> bool:
+    """Whether files can be created in ``directory`` (tried for real: root ignores permission bits, a
+    read-only mount does not)."""
+    if not os.access(directory, os.W_OK | os.X_OK):
+        return False
+    try:
+        probe = tempfile.NamedTemporaryFile(dir=directory, prefix=".vdb-write-probe-", delete=True)
+    except OSError:
+        return False
+    probe.close()
+    return True
 
 
 _ABSENT = object()

@@ -484,7 +484,7 @@ def read_episode(path: Path | str, *, recover: bool = False) -> Episode:
         raise
     except Exception as exc:  # mcap raises many types for damaged bytes: one line for all of them
         if not recover or meta is None:
-            raise LogError(f"episode log {path}: corrupt or truncated ({_describe(exc)}); "
+            raise LogError(f"episode log {path}: {_damage(exc)} ({_describe(exc)}); "
                            f"re-run the episode, or read it with recover=True") from None
     if meta is None:
         raise LogError(f"episode log {path}: not a VLADriveBench episode log (no 'episode' metadata)")
@@ -563,6 +563,17 @@ def _episode_meta(path: Path, metadata: Mapping[str, str]) -> dict:
         return json.loads(metadata["json"])
     except (KeyError, ValueError):
         raise LogError(f"episode log {path}: unreadable 'episode' metadata") from None
+
+
+def _damage(exc: BaseException) -> str:
+    """``corrupt (CRC mismatch)`` when a checksum failed, ``truncated`` when the bytes ran out early."""
+    text = f"{type(exc).__name__} {exc}".lower()
+    if "crc" in text:
+        return "corrupt (CRC mismatch)"
+    if isinstance(exc, EOFError) or any(w in text for w in ("endoffile", "eof", "end of", "truncat", "not enough",
+                                                            "requires a buffer")):
+        return "truncated"
+    return "corrupt or truncated"
 
 
 def read_result(path: Path | str) -> dict | None:

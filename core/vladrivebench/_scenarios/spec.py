@@ -521,6 +521,25 @@ def allowed_commands(layout: str, road: RoadSpec) -> tuple[str, ...]:
     return ("straight", road.stem_side or "left")
 
 
+ACTOR_BEYOND_ROUTE = 20.0
+"""How far (m) past the end of the route an actor may stand (a car parked just beyond it, say)."""
+
+
+def route_length(layout: str, road: RoadSpec) -> float:
+    """The length of the ego's route: the approach, plus the exit road past a junction."""
+    return road.approach_length + (road.exit_length if layout != "straight" else 0.0)
+
+
+def _check_actors_on_route(sc: Scenario, where: str) -> None:
+    limit = route_length(sc.layout, sc.road) + ACTOR_BEYOND_ROUTE
+    for index, actor in enumerate(sc.actors):
+        if actor.s > limit:
+            raise ScenarioError(
+                f"scenario {where}: field 'actors[{index}].s' (actor {actor.id!r}) must be at most {_fmt(limit)} "
+                f"(the route is {_fmt(route_length(sc.layout, sc.road))} m long), got {_fmt(actor.s)}: "
+                f"an actor beyond the end of the road is never met")
+
+
 def _check_consistency(sc: Scenario, top: _Table) -> None:
     where = top.where
     ids = [a.id for a in sc.actors]
@@ -529,6 +548,7 @@ def _check_consistency(sc: Scenario, top: _Table) -> None:
     duplicate = next((i for i in ids if ids.count(i) > 1), None)
     if duplicate is not None:
         raise ScenarioError(f"scenario {where}: id {duplicate!r} is used by two actors/features; ids must be unique")
+    _check_actors_on_route(sc, where)
     commands = allowed_commands(sc.layout, sc.road)
     if sc.command not in commands:
         raise top.fail("command", f"one of {', '.join(repr(c) for c in commands)} for this layout", sc.command)
@@ -578,9 +598,15 @@ def load_suite(registry: Any = None) -> dict[str, Scenario]:
     for comp in registry.components("scenario"):
         path = Path(comp.path or comp.name)
         if not path.exists():
-            raise ScenarioError(f"scenario pack {path} (registered by plugin {comp.plugin!r}): no such file or directory")
+            _pack_failure(registry, comp, ScenarioError(
+                f"scenario pack {path} (registered by plugin {comp.plugin!r}): no such file or directory"))
+            continue
         for file in scenario_files(path):
-            scenario = load_scenario_file(file)
+            try:
+                scenario = load_scenario_file(file)
+            except ScenarioError as exc:
+                _pack_failure(registry, comp, exc)
+                continue
             previous = found.get(scenario.id)
             if previous is not None:
                 raise ScenarioError(
@@ -588,6 +614,28 @@ def load_suite(registry: Any = None) -> dict[str, Scenario]:
                 )
             found[scenario.id] = scenario
     return {k: found[k] for k in sorted(found, key=natural_key)}
+
+
+def _pack_failure(registry: Any, comp: Any, exc: ScenarioError) -> None:
+    """A broken file of a plugin's scenario pack: the plugin is marked failing (``vdb list-plugins`` shows the
+    file and the reason) and its other scenarios still resolve. The core's own suite, or strict plugins, fail."""
+    if comp.plugin == "core" or getattr(registry, "strict", False):
+        raise exc
+    for info in getattr(registry, "plugins", ()):
+        if info.name == comp.plugin:
+            first = " ".join(str(exc).split())
+            if info.status != "error":
+                info.status, info.error = "error", first
+            elif first not in (info.error or ""):
+                info.error = f"{info.error}; {first}"
+
+
+def check_scenario_packs(registry: Any) -> None:
+    """Load every registered scenario pack once, so that broken files show as plugin failures."""
+    try:
+        load_suite(registry)
+    except ScenarioError:
+        pass  # a duplicate id or a broken core file: the commands that read scenarios say it in one line
 
 
 def natural_key(text: str) -> tuple:
@@ -605,15 +653,43 @@ def resolve_scenarios(spec: str | list[str] | tuple[str, ...], registry: Any = N
         raise ConfigError("no scenarios selected: give ids (P.1,C.1), a family (pedestrian), a glob (TL.*) or 'all'")
     suite: dict[str, Scenario] | None = None
     chosen: dict[str, Scenario] = {}
+    files = [t for t in tokens if _is_file_token(t)]
+    if files:
+        suite = load_suite(registry)
     for token in tokens:
-        if token.lower().endswith(SCENARIO_SUFFIXES):
+        if token in files:
             scenario = load_scenario_file(token)
+            _check_not_redefined(scenario, chosen, suite or {})
             chosen.setdefault(scenario.id, scenario)
             continue
         suite = suite if suite is not None else load_suite(registry)
         for scenario in _select(token, suite):
             chosen.setdefault(scenario.id, scenario)
     return list(chosen.values())
+
+
+def _is_file_token(token: str) -> bool:
+    """A token naming a file (``my/x.toml``, ``x.yaml``) rather than an id, a family or a glob."""
+    path = Path(token)
+    return (token.lower().endswith(SCENARIO_SUFFIXES) or "/" in token or "\\" in token
+            or (path.suffix.lower() in OTHER_DATA_SUFFIXES) or path.is_file())
+
+
+OTHER_DATA_SUFFIXES = (".yaml", ".yml", ".ini", ".txt", ".csv", ".xml", ".cfg")
+
+
+def _check_not_redefined(scenario: Scenario, chosen: dict[str, Scenario], suite: dict[str, Scenario]) -> None:
+    for other in (chosen.get(scenario.id), suite.get(scenario.id)):
+        if other is not None and _source_of(other) != _source_of(scenario):
+            raise ScenarioError(f"scenario id {scenario.id!r} is defined twice: in {other.source} and in "
+                                f"{scenario.source}; give one of them another id")
+
+
+def _source_of(scenario: Scenario) -> str:
+    try:
+        return str(Path(scenario.source).resolve())
+    except (OSError, TypeError):
+        return str(scenario.source)
 
 
 def _select(token: str, suite: dict[str, Scenario]) -> list[Scenario]:

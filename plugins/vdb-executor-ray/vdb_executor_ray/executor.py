@@ -35,6 +35,31 @@ class _EpisodeWorker:
         return os.getpid()
 
 
+PROBE_TIMEOUT_S = 3.0
+"""How long the executor waits for a cluster's port to accept a connection before refusing the address."""
+
+
+def check_reachable(address: str, timeout: float = PROBE_TIMEOUT_S) -> None:
+    """Refuse (one line) a ``host:port`` or ``ray://host:port`` address whose port accepts no TCP connection
+    within ``timeout`` seconds, before ``ray.init`` would retry it for minutes. ``"auto"`` and ``"local"``
+    are left to Ray."""
+    import socket
+
+    target = address.strip()
+    if target in {"auto", "local"}:
+        return
+    host, sep, port = target.split("://", 1)[-1].rstrip("/").rpartition(":")
+    if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
+        raise ConfigError(f"executor 'ray': address must be 'auto', 'host:port' or 'ray://host:port', got {address!r}")
+    try:
+        with socket.create_connection((host.strip("[]"), int(port)), timeout=timeout):
+            pass
+    except OSError as exc:
+        reason = exc.strerror or type(exc).__name__
+        raise ConfigError(f"executor 'ray': no Ray cluster answers at {address} ({reason}); start one "
+                          f"(`ray start --head`) or give --address of a running cluster") from None
+
+
 class RayExecutor:
     """Runs jobs on ``workers`` Ray actors.
 
@@ -54,6 +79,8 @@ class RayExecutor:
             raise ConfigError(f"executor 'ray': num_cpus_per_worker must be a number > 0, got {num_cpus_per_worker!r}")
         if address is not None and (not isinstance(address, str) or not address.strip()):
             raise ConfigError(f"executor 'ray': address must be a non-empty string, got {address!r}")
+        if address is not None:
+            check_reachable(address)
         self.address = address
         self.num_cpus_per_worker = float(num_cpus_per_worker)
         self.object_store_mb = int(object_store_mb)
