@@ -218,7 +218,8 @@ def execute(settings: RunSettings, *, quiet: bool):
                               "configuration: results may differ from unbatched in floating point).")
 @click.option("--config", "config_file", type=click.Path(dir_okay=False),
               help="TOML run configuration; command-line flags override it.")
-@click.option("--log-images", is_flag=True, help="Also log the camera images (PNG): the front image every step, each rig camera on /camera/NAME.")
+@click.option("--log-images", is_flag=True,
+              help="Also log the camera images (PNG): the front image every step, each rig camera on /camera/NAME.")
 @click.option("--retry-failed", is_flag=True, help="Redo episodes recorded as failed in OUT/failures.json.")
 @click.option("--quiet", is_flag=True, help="No progress on stderr.")
 @click.option("--json", "as_json", is_flag=True, help="Print a machine-readable summary on stdout.")
