@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import copy
 import json
+import re
 
 import pytest
 from hypothesis import HealthCheck, given, settings
@@ -120,12 +121,12 @@ def test_every_suite_scenario_round_trips(suite):
 # -- round trip of generated scenarios ----------------------------------------------------------------
 
 actor_specs = st.one_of(
-    st.fixed_dictionaries({"kind": st.sampled_from(["pedestrian", "car", "animal"]), "s": st.floats(0, 200),
+    st.fixed_dictionaries({"kind": st.sampled_from(["pedestrian", "car", "animal"]), "s": st.floats(0, 25),
                            "offset": st.floats(-10, 10), "heading_deg": st.floats(-180, 180)}),
-    st.fixed_dictionaries({"kind": st.just("pedestrian"), "s": st.floats(0, 200), "motion": st.just("along"),
+    st.fixed_dictionaries({"kind": st.just("pedestrian"), "s": st.floats(0, 25), "motion": st.just("along"),
                            "speed": st.floats(0.1, 3), "direction": st.sampled_from(["same", "opposite"]),
                            "trigger_distance": st.floats(0, 80)}),
-    st.fixed_dictionaries({"kind": st.just("pedestrian"), "s": st.floats(0, 200), "motion": st.just("cross"),
+    st.fixed_dictionaries({"kind": st.just("pedestrian"), "s": st.floats(0, 25), "motion": st.just("cross"),
                            "speed": st.floats(0.1, 3), "offset": st.floats(-8, -1), "end_offset": st.floats(1, 8)}),
 )
 
@@ -288,8 +289,10 @@ def test_a_user_pack_adds_scenarios(tmp_path, suite):
 
 def test_a_registered_path_that_does_not_exist(tmp_path):
     registry = Registry(plugins=[("pack", pack_plugin(tmp_path / "gone"))], entry_points=False)
-    with pytest.raises(ScenarioError, match="scenario pack .*gone .*registered by plugin 'pack'.*no such file"):
-        load_suite(registry)
+    assert load_suite(registry) == {}  # the pack's plugin is marked failing; other packs still resolve
+    (info,) = registry.plugins
+    assert info.status == "error" and re.search("scenario pack .*gone .*registered by plugin 'pack'.*no such file",
+                                                info.error)
 
 
 # -- selection ----------------------------------------------------------------------------------------

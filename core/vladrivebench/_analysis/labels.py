@@ -330,13 +330,13 @@ def _jsonl_item(data: Any, number: int, where: str, need_labels: bool) -> JsonlI
         value = context.get(name)
         if name in context and (not isinstance(value, kinds) or isinstance(value, bool)):
             raise ConfigError(f"{where}: context.{name} has the wrong type ({type(value).__name__})")
-    if "id" not in data:  # never numbered silently: an edited file would match other items
-        raise ConfigError(f"{where}: missing \"id\" (a string or an integer, unique within the file)")
     labels = None
     if "labels" in data:
         labels = labels_from_json(data["labels"], f"{where}: labels")
     elif need_labels:
         raise ConfigError(f"{where}: no \"labels\" object (a label file needs one on every line)")
+    if "id" not in data:  # never numbered silently: an edited file would match other items
+        raise ConfigError(f"{where}: missing \"id\" (a string or an integer, unique within the file)")
     extra = {k: v for k, v in data.items() if k not in {"id", "text", "slots", "context", "labels"}}
     stated = tuple(p for p in PROPERTIES if p in data["labels"]) if labels is not None else ()
     return JsonlItem(str(ident), LabelInput(text=text, slots=slots, context=context, key=str(ident)), labels, extra,

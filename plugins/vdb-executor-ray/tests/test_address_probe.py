@@ -7,7 +7,7 @@ import time
 
 import pytest
 from vdb_executor_ray.executor import RayExecutor, check_reachable
-from vladrivebench.errors import ConfigError
+from vladrivebench import ConfigError
 
 
 def test_a_listening_port_is_accepted():
