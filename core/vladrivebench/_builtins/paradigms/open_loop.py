@@ -65,7 +65,8 @@ class OpenLoopParadigm:
         items: list[Any] = [open_loop_table(results, route, horizon)
                             for route, block in results["open_loop"].items() for horizon in block["stats"]]
         dose = dose_response_plot(results)
-        return items + ([dose] if dose is not None else [])
+        plots = [displacement_plot(results), step_distribution_plot(results)]
+        return items + plots + ([dose] if dose is not None else [])
 
     def pilot_effects(self, results: Mapping[str, Any], route: str) -> list[tuple[str, list[float], str]]:
         """The per-seed mean differences at the first horizon."""
@@ -177,3 +178,45 @@ def dose_response_plot(results: Mapping[str, Any]) -> Plot | None:
                 notes=("band: 95 % t-interval of the per-seed mean differences",), metric="intervention")
 
 
+
+
+def displacement_plot(results: Mapping[str, Any]) -> Plot:
+    """The mean displacement difference of every condition against the horizon, with the 95 % t-interval of
+    the per-seed mean differences as a band and the steps behind every point."""
+    panels = []
+    for route, block in results["open_loop"].items():
+        horizons = list(block["stats"])
+        series = []
+        for condition in results["conditions"]:
+            rows = [next(r for r in block["stats"][h] if r["condition"] == condition) for h in horizons]
+            intervals = [t_interval([from_json_number(v) for v in r["seed_means"]]) for r in rows]
+            series.append(Series(condition, tuple(float(r["horizon_s"]) for r in rows),
+                                 tuple(cell_value(r["mean_diff"]) for r in rows),
+                                 tuple(cell_value(i.low) for i in intervals),
+                                 tuple(cell_value(i.high) for i in intervals), tuple(int(r["n"]) for r in rows)))
+        panels.append((f"route {route}", tuple(series)))
+    return Plot("intervention.open_loop_displacement", "Open-loop: displacement difference per condition",
+                tuple(panels), xlabel="horizon (s)", ylabel="mean displacement diff (m)",
+                notes=("selfsplice: minus the baseline (0 when the gate holds); other conditions: minus selfsplice. "
+                       "Band: 95 % t-interval of the per-seed mean differences; counts: steps.",),
+                metric="intervention")
+
+
+def step_distribution_plot(results: Mapping[str, Any]) -> Plot:
+    """The per-step distribution of the displacement difference at the first horizon: one empirical CDF per
+    condition over every step of every seed."""
+    panels = []
+    for route, block in results["open_loop"].items():
+        horizon = next(iter(block["steps"]))
+        series = []
+        for condition in results["conditions"]:
+            values = sorted(float(v) for by_seed in [block["steps"][horizon][condition]]
+                            for steps in by_seed.values() for v in steps)
+            n = len(values)
+            series.append(Series(condition, tuple(values), tuple((i + 1) / n for i in range(n)),
+                                 counts=tuple(n for _ in values)))
+        panels.append((f"route {route}, @{horizon} s", tuple(series)))
+    return Plot("intervention.open_loop_steps", "Open-loop: per-step displacement difference",
+                tuple(panels), xlabel="displacement diff (m)", ylabel="fraction of steps ≤ x",
+                notes=("Empirical CDF over every step of every seed; a condition that changes nothing is a step "
+                       "at 0.",), metric="intervention")
