@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
-from vdb_model_neural import toolkit
+from vdb_adapter_transformers import toolkit
 from vdb_model_neural.kv_model import KVModel
 from vdb_model_neural.qa_model import QAModel
 from vladrivebench import BatchedModel, ConfigError, EgoState, GroundTruth, Observation

@@ -4,7 +4,7 @@
 (one token per row, or padding for a row that has nothing to feed). Rows keep their own positions
 (explicit ``position_ids``) and an attention mask that hides every padding position, so a row's real
 keys and values are what it would compute alone, up to floating point. :meth:`LockstepDecoder.row_state`
-cuts one row out as an ordinary batch-1 :class:`~vdb_model_neural.toolkit.DecoderState`.
+cuts one row out as an ordinary batch-1 :class:`~vdb_adapter_transformers.toolkit.DecoderState`.
 
 Generation (:func:`generate_lockstep`) and splicing (:func:`splice_lockstep`) feed exactly the same
 columns for the same texts — start marker, the tokens, end marker, then padding — so within a batch a
