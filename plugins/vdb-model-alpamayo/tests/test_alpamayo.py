@@ -216,6 +216,8 @@ def test_vdb_run_and_label_end_to_end(capsys, tmp_path):
 def test_vdb_intervene_end_to_end_with_the_fidelity_gate(capsys, tmp_path, mode, source, route_id):
     route = short_scenario(tmp_path, source, route_id, seconds=0.3)
     conditions = ["--conditions", "accel"] if mode != "safety" else []
+    if mode == "closed-loop":  # checkpoints must fall within the 0.3 s episode
+        conditions += ["--checkpoints", "0.1,0.2"]
     code, out, err = vdb(capsys, "intervene", *TINY, "--route", route, "--mode", mode, "--seeds", 1, *conditions,
                          "--quiet", "--json", "--out", tmp_path / "iv")
     assert code == 0, err
