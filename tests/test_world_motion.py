@@ -90,14 +90,14 @@ def test_a_scripted_road_user_keeps_its_script(spec, ego_s, ego_offset):
 def test_without_the_ego_in_the_way_a_mover_follows_its_script_exactly(spec, shift):
     user = ScriptedUser.at_start(spec, shift)
     user.started = True
-    steps = 200
+    steps = 300
     for _ in range(steps):
         user.advance(ROUTE, FAR_AWAY, DT)
     if spec.motion == "along":
         sign = 1.0 if spec.direction == "same" else -1.0
         assert user.s == pytest.approx(spec.s + shift + sign * spec.speed * DT * steps, abs=1e-6)
         assert user.speed == spec.speed
-    else:  # 200 steps at 0.5 m/s or more cover the at most 12 m across: it stands at its end (summed steps
+    else:  # 300 steps at 0.5 m/s or more (15 m) cover the at most 12 m across: it stands at its end (summed steps
         # land within rounding of it, and that counts as arrived)
         assert (user.s, user.speed) == (spec.s + shift, 0.0)
         assert user.offset == pytest.approx(spec.end_offset, abs=1e-12)
