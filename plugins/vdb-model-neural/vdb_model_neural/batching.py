@@ -28,8 +28,8 @@ class LockstepDecoder:
         self.lm, self.pad_id = lm, int(pad_id)
         self.device = embeds.device
         rows, prefix = embeds.shape[:2]
-        out = lm(inputs_embeds=embeds, past_key_values=DynamicCache(), use_cache=True, output_hidden_states=True)
-        self.cache = out.past_key_values
+        out = lm(inputs_embeds=embeds, cache=toolkit.new_cache(lm), use_cache=True, output_hidden_states=True)
+        self.cache = out.cache
         self.mask = torch.ones((rows, prefix), dtype=torch.bool, device=self.device)
         self.lengths = torch.full((rows,), prefix, dtype=torch.long, device=self.device)
         self.hidden, self.logits = out.hidden_states[-1][:, -1], out.logits[:, -1]
@@ -62,7 +62,7 @@ class LockstepDecoder:
                 f"a lockstep batch needs {self.mask.shape[1] + ids.shape[1]} cache positions, more than the "
                 f"model's context of {self.limit}")
         mask = torch.cat([self.mask, real], dim=1)
-        out = self.lm(input_ids=ids, attention_mask=mask.long(), position_ids=positions, past_key_values=self.cache,
+        out = self.lm(input_ids=ids, attention_mask=mask.long(), position_ids=positions, cache=self.cache,
                       use_cache=True, output_hidden_states=True)
         self.mask = mask
         fed = real.any(dim=1)[:, None]
