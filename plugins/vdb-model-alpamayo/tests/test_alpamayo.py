@@ -233,3 +233,30 @@ def test_a_bad_option_on_the_command_line_is_one_line_and_exit_2(capsys, tmp_pat
     code, out, err = vdb(capsys, "run", "--model", "alpamayo", "--model-opt", "cameras=rear", "--scenarios",
                          scenario, "--seeds", 1, "--executor", "sequential", "--out", tmp_path / "bad")
     assert code == 2 and err.count("\n") == 1 and err.startswith("vdb: error: ") and "'rear'" in err
+
+
+@pytest.mark.parametrize("tamper, fragment", [
+    (lambda b: setattr(b.image_processor, "merge_size", 3), "image processor's merge_size is 3, the vision tower's is 2"),
+    (lambda b: setattr(b.image_processor, "patch_size", 14), "image processor's patch_size is 14"),
+    (lambda b: setattr(b.vlm.config, "image_token_id", 7), "the model's image token is 7"),
+])
+def test_a_processor_that_does_not_match_the_model_is_refused_in_one_line(tamper, fragment):
+    from vdb_model_alpamayo.backbone import check_processor, tiny_backbone
+
+    backbone = tiny_backbone(0)
+    check_processor(backbone, "(tiny model)")  # the matching one passes
+    tamper(backbone)
+    with pytest.raises(ConfigError, match=fragment) as info:
+        check_processor(backbone, "option checkpoint=/ckpt")
+    assert "\n" not in str(info.value) and "option checkpoint=/ckpt" in str(info.value)
+
+
+def test_a_tokenizer_without_the_alpamayo_tokens_is_refused():
+    from vdb_adapter_transformers import tiny
+    from vdb_model_alpamayo.backbone import Backbone, check_processor, tiny_backbone
+
+    good = tiny_backbone(0)
+    bare = tiny.byte_tokenizer(["<|image_pad|>", "<|vision_start|>", "<|vision_end|>"])
+    bad = Backbone(good.vlm, bare, good.image_processor, good.expert, good.action_in, good.action_out, "tiny")
+    with pytest.raises(ConfigError, match="the tokenizer does not know <\\|cot_start\\|>"):
+        check_processor(bad, "option checkpoint=/ckpt")

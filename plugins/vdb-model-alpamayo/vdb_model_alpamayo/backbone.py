@@ -162,3 +162,34 @@ def _checkpoint_history(model: Any) -> Callable[[np.ndarray], list[int]]:
                                                              model.hist_token_start_idx)[0]]
 
     return encode
+
+
+def check_processor(backbone: Backbone, where: str) -> None:
+    """Refuse, in one line, a tokenizer or image processor that does not match the VLM: the Alpamayo tokens
+    and the image placeholder must be known (the placeholder with the id the model expects), no token id may
+    fall outside the model's embeddings, and the image processor must cut patches as the vision tower does."""
+    tokenizer, config = backbone.tokenizer, backbone.vlm.config
+    unknown = [t for t in ALPAMAYO_TOKENS if _unknown(tokenizer, t)]
+    if unknown:
+        raise ConfigError(f"model 'alpamayo' {where}: the tokenizer does not know {', '.join(unknown)}; expected "
+                          f"an Alpamayo tokenizer with the tokens {', '.join(ALPAMAYO_TOKENS)}")
+    pad = tokenizer.convert_tokens_to_ids("<|image_pad|>")
+    if pad != config.image_token_id:
+        raise ConfigError(f"model 'alpamayo' {where}: the tokenizer's <|image_pad|> is id {pad}, the model's "
+                          f"image token is {config.image_token_id}; expected the processor of this checkpoint")
+    embeddings = backbone.vlm.get_input_embeddings().num_embeddings
+    if len(tokenizer) > embeddings:
+        raise ConfigError(f"model 'alpamayo' {where}: the tokenizer has {len(tokenizer)} tokens, the model "
+                          f"embeds {embeddings}; expected the tokenizer of this checkpoint")
+    vision = config.vision_config
+    for name, expected in (("patch_size", vision.patch_size), ("merge_size", vision.spatial_merge_size),
+                           ("temporal_patch_size", getattr(vision, "temporal_patch_size", None))):
+        found = getattr(backbone.image_processor, name, None)
+        if expected is not None and found != expected:
+            raise ConfigError(f"model 'alpamayo' {where}: the image processor's {name} is {found}, the vision "
+                              f"tower's is {expected}; expected the image processor of this checkpoint")
+
+
+def _unknown(tokenizer: Any, token: str) -> bool:
+    ids = tokenizer.convert_tokens_to_ids(token)
+    return ids is None or ids == tokenizer.unk_token_id or tokenizer.convert_ids_to_tokens(ids) != token

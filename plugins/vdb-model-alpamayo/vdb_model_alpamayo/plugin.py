@@ -42,6 +42,9 @@ def make_alpamayo(checkpoint: str | None = None, device: str = "cpu", dtype: str
         from vdb_adapter_transformers import tiny
 
         backbone.image_processor = tiny.image_processor(backbone.vlm, size[0] * size[1], size[0] * size[1])
+    from .backbone import check_processor
+
+    check_processor(backbone, f"option checkpoint={checkpoint}" if checkpoint else "(tiny model)")
     return AlpamayoModel(backbone, names, frames, size, max_cot_tokens, splice_mode, device)
 
 
