@@ -37,7 +37,7 @@ def private_imports(path: Path, allowed: dict[str, set[str]]) -> list[str]:
                 problems.append(f"{path.relative_to(ROOT)}:{node.lineno}: module {node.module}")
                 continue
             for alias in node.names:
-                if alias.name not in allowed[node.module] and f"{node.module}.{alias.name}" not in allowed:
+                if alias.name not in allowed[node.module]:
                     problems.append(f"{path.relative_to(ROOT)}:{node.lineno}: {node.module}.{alias.name}")
         elif isinstance(node, ast.Import):
             for alias in node.names:

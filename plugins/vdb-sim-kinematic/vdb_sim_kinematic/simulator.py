@@ -22,12 +22,13 @@ scenario's outcome; :func:`vladrivebench.world._motion.scripted_users`); cars, l
 from __future__ import annotations
 
 from vladrivebench import Control, Observation, Scenario
-from vladrivebench import world as bicycle  # the bicycle model: DT, apply_control, EGO_LENGTH, EGO_WIDTH
 from vladrivebench.world import (
+    DT,
     WORLD_FEATURES,
     RigRecorder,
     RoadGeometry,
     TruthTracker,
+    apply_control,
     build_road,
     check_history_options,
     check_supported,
@@ -55,7 +56,7 @@ class KinematicSimulator:
     docstring).
     """
 
-    dt = bicycle.DT
+    dt = DT
 
     def __init__(self, width: int | None = None, height: int | None = None, render: bool = True,
                  hfov_deg: float = 90.0, camera_height: float = 1.6, pitch_deg: float = 0.0,
@@ -92,7 +93,7 @@ class KinematicSimulator:
             raise RuntimeError("KinematicSimulator.step() called before reset()")
         if self._terminal is not None:
             raise RuntimeError(f"the episode has ended ({self._terminal}); call reset() to start another")
-        self.ego = bicycle.apply_control(self.ego, control, self.dt)
+        self.ego = apply_control(self.ego, control, self.dt)
         self._move_users()
         self.step_index += 1
         collisions = colliding(self.ego, self._actors())

@@ -37,12 +37,15 @@ from pathlib import Path
 from typing import Any
 
 from vladrivebench import Actor, CameraSpec, ConfigError, Control, Observation, Scenario, episode_rng
-from vladrivebench import world as bicycle  # the bicycle model: DT, apply_control, EGO_LENGTH, EGO_WIDTH
 from vladrivebench.world import (
+    DT,
+    EGO_LENGTH,
+    EGO_WIDTH,
     WORLD_FEATURES,
     RigRecorder,
     RoadGeometry,
     TruthTracker,
+    apply_control,
     build_road,
     check_history_options,
     check_numbers,
@@ -77,7 +80,7 @@ PEDESTRIAN_OPTIONS = {
 }
 """SUMO's pedestrian model per ``pedestrians`` mode (SUMO-walked pedestrians keep the scenario's speed)."""
 SUMO_OPTIONS = (
-    "--step-length", f"{bicycle.DT}",
+    "--step-length", f"{DT}",
     "--no-step-log", "true",
     "--no-warnings", "true",
     "--collision.action", "warn",
@@ -119,7 +122,7 @@ class SumoSimulator:
     ``depart_pos`` (m along the first edge), and ``cache_dir`` (where built networks are kept).
     """
 
-    dt = bicycle.DT
+    dt = DT
 
     def __init__(self, width: int | None = None, height: int | None = None, render: bool = True,
                  hfov_deg: float = 90.0, camera_height: float = 1.6, pitch_deg: float = 0.0,
@@ -205,7 +208,7 @@ class SumoSimulator:
             raise RuntimeError("SumoSimulator.step() called before reset()")
         if self._terminal is not None:
             raise RuntimeError(f"the episode has ended ({self._terminal}); call reset() to start another")
-        self.ego = bicycle.apply_control(self.ego, control, self.dt)
+        self.ego = apply_control(self.ego, control, self.dt)
         self._move_users()
         self._place()
         self.libsumo.simulationStep()
@@ -281,8 +284,8 @@ class SumoSimulator:
         vtype = sumo.vehicletype
         vtype.copy("DEFAULT_VEHTYPE", EGO_ID)
         vtype.setVehicleClass(EGO_ID, "passenger")
-        vtype.setLength(EGO_ID, bicycle.EGO_LENGTH)
-        vtype.setWidth(EGO_ID, bicycle.EGO_WIDTH)
+        vtype.setLength(EGO_ID, EGO_LENGTH)
+        vtype.setWidth(EGO_ID, EGO_WIDTH)
         vtype.setMinGap(EGO_ID, 0.0)
         sumo.route.add(EGO_ID, list(self.world.route_edges))
         sumo.vehicle.add(EGO_ID, EGO_ID, typeID=EGO_ID, depart="now", departLane=str(self.world.ego_lane),
@@ -480,7 +483,7 @@ def _check_options(values: dict[str, Any]) -> tuple[tuple[CameraSpec, ...], int]
         return option_error("sumo", name, expected, values[name])
 
     specs = rig_from_options("sumo", values)
-    stride = check_history_options("sumo", values, bicycle.DT)
+    stride = check_history_options("sumo", values, DT)
     check_numbers("sumo", values, (("background_vehicles_per_hour", 0.0, 20000.0),
                                    ("background_pedestrians_per_hour", 0.0, 20000.0),
                                    ("background_warmup_s", 0.0, 3600.0), ("depart_pos", 0.0, 1e6)))
