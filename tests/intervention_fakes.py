@@ -169,3 +169,22 @@ def fake_registry(*extra):
 
     return Registry([("core", builtins), ("fakes", importlib.import_module("intervention_fakes").Fakes()),
                      *extra], entry_points=False)
+
+
+# -- the CLI in process, for the intervention command's tests ------------------------------------------------
+def vdb(capsys, *args):
+    """``vdb ARGS`` in this process: ``(exit status, stdout, stderr)``."""
+    from vladrivebench._cli import main as cli
+
+    code = cli.main([str(a) for a in args])
+    captured = capsys.readouterr()
+    return code, captured.out, captured.err
+
+
+def one_line_error(code, err, *fragments):
+    """Assert a user error: exit status 2 and one ``vdb: error:`` line holding every fragment."""
+    assert code == 2, err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("vdb: error: "), err
+    for fragment in fragments:
+        assert fragment in lines[0], lines[0]

@@ -3,10 +3,8 @@
 from __future__ import annotations
 
 import dataclasses
-import importlib
-import sys
-from pathlib import Path
 
+import intervention_fakes as fakes
 import pytest
 from vladrivebench import hookimpl
 from vladrivebench._engine.sweep import ComponentSpec
@@ -14,9 +12,6 @@ from vladrivebench._intervention.conditions import injection_problem
 from vladrivebench._intervention.runs import InterventionConfig, InterventionRun
 from vladrivebench._scenarios.spec import resolve_scenarios
 from vladrivebench.records import CoT, CoTFormat
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-fakes = importlib.import_module("intervention_fakes")
 
 
 class SometimesSilent(fakes.KeywordModel):

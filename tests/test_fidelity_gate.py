@@ -5,19 +5,14 @@ tolerance even when selfsplice passes, and reports the largest differences besid
 from __future__ import annotations
 
 import dataclasses
-import importlib
-import sys
-from pathlib import Path
 
+import intervention_fakes as fakes
 import pytest
 from vladrivebench import FidelityCheck, hookimpl
 from vladrivebench._engine.sweep import ComponentSpec
 from vladrivebench._intervention.metric import gate_table
 from vladrivebench._intervention.runs import GateTally, InterventionConfig, InterventionRun, gate_message
 from vladrivebench._scenarios.spec import resolve_scenarios
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-fakes = importlib.import_module("intervention_fakes")
 
 
 class FaithfulModel(fakes.KeywordModel):

@@ -2,17 +2,12 @@
 
 from __future__ import annotations
 
-import importlib
 import re
 import shlex
-import sys
-from pathlib import Path
 
+import intervention_fakes as fakes
 from vladrivebench._cli import main as cli
 from vladrivebench._engine import registry as plugins
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-fakes = importlib.import_module("intervention_fakes")
 
 
 def test_the_printed_report_hint_runs(capsys, tmp_path):

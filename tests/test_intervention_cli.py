@@ -6,6 +6,7 @@ import json
 
 import intervention_fakes as fakes
 import pytest
+from intervention_fakes import one_line_error, vdb
 from vladrivebench._analysis.tables import AnalysisDataset, Plot, Table
 from vladrivebench._cli import main as cli
 from vladrivebench._engine import registry as plugins
@@ -19,20 +20,6 @@ def fake_world():
     previous = plugins.set_registry(fakes.fake_registry())
     yield
     plugins.set_registry(previous)
-
-
-def vdb(capsys, *args):
-    code = cli.main([str(a) for a in args])
-    captured = capsys.readouterr()
-    return code, captured.out, captured.err
-
-
-def one_line_error(code, err, *fragments):
-    assert code == 2, err
-    lines = err.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("vdb: error: "), err
-    for fragment in fragments:
-        assert fragment in lines[0], lines[0]
 
 
 @pytest.fixture(scope="module")

@@ -10,9 +10,10 @@ import json
 import sys
 from pathlib import Path
 
+import intervention_fakes as fakes
 import pytest
+from intervention_fakes import one_line_error, vdb
 from vladrivebench import hookimpl
-from vladrivebench._cli import main as cli
 from vladrivebench._engine import registry as plugins
 from vladrivebench._intervention.metric import InterventionMetric
 from vladrivebench.intervention import (
@@ -26,15 +27,6 @@ from vladrivebench.intervention import (
 from vladrivebench.metrics import AnalysisDataset, Cell, Row, Table
 from vladrivebench.protocols import Paradigm
 
-
-def load_fakes():
-    folder = str(Path(__file__).resolve().parent)
-    if folder not in sys.path:
-        sys.path.insert(0, folder)
-    return importlib.import_module("intervention_fakes")
-
-
-fakes = load_fakes()
 BASE = ["intervene", "--model", "keyword", "--sim", "line", "--controller", "speed", "--quiet", "--route", "E.1",
         "--seeds", "2"]
 
@@ -109,20 +101,6 @@ def echo_registry():
     previous = plugins.set_registry(registry)
     yield registry
     plugins.set_registry(previous)
-
-
-def vdb(capsys, *args):
-    code = cli.main([str(a) for a in args])
-    captured = capsys.readouterr()
-    return code, captured.out, captured.err
-
-
-def one_line_error(code, err, *fragments):
-    assert code == 2, err
-    lines = err.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("vdb: error: "), err
-    for fragment in fragments:
-        assert fragment in lines[0], lines[0]
 
 
 # -- registration -------------------------------------------------------------------------------------

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import importlib
 import json
 import os
 import signal
@@ -13,6 +12,7 @@ from dataclasses import replace
 from pathlib import Path
 
 import pytest
+import runner_fakes as fakes
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from vladrivebench._engine import sweep
@@ -22,15 +22,6 @@ from vladrivebench._engine.sweep import ComponentSpec, RunConfig, run_sweep
 from vladrivebench._logs.episodes import read_episode
 from vladrivebench.errors import ConfigError
 
-
-def load_fakes():
-    folder = str(Path(__file__).resolve().parent)
-    if folder not in sys.path:
-        sys.path.insert(0, folder)
-    return importlib.import_module("runner_fakes")
-
-
-fakes = load_fakes()
 REGISTRY = Registry([("fakes", fakes)], entry_points=False)
 
 

@@ -13,9 +13,6 @@ from collections import Counter
 from pathlib import Path
 
 import pytest
-
-sys.path.insert(0, str(Path(__file__).parent))
-
 from cases import CASES  # noqa: E402
 from harness import OUTCOMES, classify, explain, run_in_process, run_subprocess, snapshot  # noqa: E402
 

@@ -10,16 +10,12 @@ from __future__ import annotations
 import dataclasses
 import json
 import shutil
-import sys
 from pathlib import Path
 
 import pytest
+from harness import Case, classify, explain, run_in_process, snapshot  # noqa: E402
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-
-sys.path.insert(0, str(Path(__file__).parent))
-
-from harness import Case, classify, explain, run_in_process, snapshot  # noqa: E402
 from test_fuzz_cli import complete_run  # noqa: E402
 
 FUZZ = settings(max_examples=25, derandomize=True, deadline=None, database=None,

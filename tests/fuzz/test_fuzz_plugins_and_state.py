@@ -11,9 +11,6 @@ import sys
 from pathlib import Path
 
 import pytest
-
-sys.path.insert(0, str(Path(__file__).parent))
-
 from cases import fake_distribution, scenario_json  # noqa: E402
 from harness import Case, classify, explain, run_in_process, snapshot  # noqa: E402
 from test_fuzz_cli import complete_run  # noqa: E402
