@@ -17,6 +17,7 @@ import statistics
 import time
 
 import numpy as np
+from vladrivebench.testing import synthetic_observation
 
 
 def median_time(fn, repeats: int) -> float:
@@ -27,15 +28,6 @@ def median_time(fn, repeats: int) -> float:
         fn()
         times.append(time.perf_counter() - started)
     return statistics.median(times)
-
-
-def observation():
-    from vladrivebench import EgoState, GroundTruth, Observation
-
-    image = (np.random.default_rng(0).random((80, 160, 3)) * 255).astype(np.uint8)
-    truth = GroundTruth(step=0, time=0.0, critical_id=None, critical_kind=None, distance_to_critical=None,
-                        blocking=False, route_progress=0.0, route_length=50.0, collisions=(), terminal=None)
-    return Observation(0, 0.0, image, EgoState(0.0, 0.0, 0.0, 5.0), "follow_lane", truth, "bench")
 
 
 def main() -> None:
@@ -49,7 +41,7 @@ def main() -> None:
 
     model = make_alpamayo(frames=args.frames, max_cot_tokens=args.cot)
     model.banned = [*model.banned, model.end_id]  # always write --cot tokens, so every part sees the same text
-    obs = observation()
+    obs = synthetic_observation(height=80, width=160)  # the conformance kit's deterministic frame
     rng = lambda: np.random.default_rng(1)  # noqa: E731
 
     def prefix():
