@@ -57,12 +57,22 @@ def register_executors(register):
     register("process", ProcessExecutor, description="a pool of spawned worker processes (--workers N)")
 
 
+BUILTIN_METRICS: tuple[tuple[str, str, str], ...] = (
+    ("mention_rate", "MentionRate", "target mention rate by scenario and distance zone"),
+    ("tl_accuracy", "LightAccuracy", "traffic-light colour accuracy conditional on mention"),
+    ("hallucination", "HallucinationRate", "hallucination rate by scenario and distance zone"),
+    ("contradiction", "ContradictionRate", "internal contradiction rate per model (Wilson 95 % CI)"),
+    ("alignment_distance", "AlignmentByDistance", "relaxed/strict action alignment by distance (1 m bins)"),
+    ("alignment_command", "AlignmentByCommand", "alignment by CoT command in a speed band, head breakdown"),
+)
+"""The built-in metrics (name, class in ``vladrivebench._builtins.metrics``, description), registered by import
+path so that ``vdb list-plugins`` does not import the analysis stack."""
+
+
 @hookimpl
 def register_metrics(register):
-    from vladrivebench._builtins.metrics import BUILTIN_METRICS  # matplotlib is imported when plotting
-
-    for name, factory, description in BUILTIN_METRICS:
-        register(name, factory, description=description)
+    for name, cls, description in BUILTIN_METRICS:
+        register(name, f"vladrivebench._builtins.metrics:{cls}", description=description)
     register("intervention", "vladrivebench._intervention.metric:InterventionMetric", description="open-loop, closed-loop and safety intervention "
              "tables (paper Tables 5-9) with the selfsplice gate")
 

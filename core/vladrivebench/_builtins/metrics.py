@@ -361,16 +361,3 @@ class AlignmentByCommand:
                              "set's primary action; share = fraction of the model's steps with that command "
                              "(its count is the model's total); the breakdown counts the action head's primary "
                              "action",), metric=self.name)]
-
-
-BUILTIN_METRICS: tuple[tuple[str, type, str], ...] = (
-    ("mention_rate", MentionRate, "target mention rate by scenario and distance zone"),
-    ("tl_accuracy", LightAccuracy, "traffic-light colour accuracy conditional on mention"),
-    ("hallucination", HallucinationRate, "hallucination rate by scenario and distance zone"),
-    ("contradiction", ContradictionRate, "internal contradiction rate per model (Wilson 95 % CI)"),
-    ("alignment_distance", AlignmentByDistance, "relaxed/strict action alignment by distance (1 m bins)"),
-    ("alignment_command", AlignmentByCommand, "alignment by CoT command in a speed band, head breakdown"),
-)
-"""The built-in metrics, registered by the core's plugin through ``register_metrics``."""
-
-
