@@ -793,15 +793,15 @@ def episode_summary(episode: Any, checkpoints: Sequence[float], *, baseline: boo
     """
     steps = episode.steps
     times = [s.time for s in steps]
-    xy = [(s.ego["x"], s.ego["y"]) for s in steps]
-    brakes = sum(1 for s in steps if float(s.control.get("brake", 0.0)) > 0.0)
+    xy = [(s.ego.x, s.ego.y) for s in steps]
+    brakes = sum(1 for s in steps if s.control.brake > 0.0)
     if baseline:
         shadow = brakes
     else:
         shadow = sum(1 for s in steps
                      if float(((s.extras.get("intervention") or {}).get("shadow") or {}).get("brake", 0.0)) > 0.0)
     result = episode.result or {}
-    speeds = [float(s.ego["speed"]) for s in steps]
+    speeds = [s.ego.speed for s in steps]
     return EpisodeSummary(
         seed=episode.seed, steps=len(steps), duration_s=(times[-1] - times[0]) if times else 0.0,
         mean_speed=float(np.mean(speeds)) if speeds else math.nan,

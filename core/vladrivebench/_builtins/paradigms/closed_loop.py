@@ -133,7 +133,7 @@ def closed_loop_route(route: str, config: Mapping[str, Any], episodes: LoggedEpi
 
 
 def _path(episode: Any) -> tuple[list[float], list[tuple[float, float]]]:
-    return [s.time for s in episode.steps], [(s.ego["x"], s.ego["y"]) for s in episode.steps]
+    return [s.time for s in episode.steps], [(s.ego.x, s.ego.y) for s in episode.steps]
 
 
 def _curve_grid(checkpoints: Sequence[float], baselines: Sequence[Any]) -> list[float]:

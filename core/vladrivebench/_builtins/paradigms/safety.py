@@ -72,11 +72,11 @@ def safety_route(route: str, config: Mapping[str, Any], episodes: LoggedEpisodes
 
 def safety_outcome(episode: Any) -> dict[str, Any]:
     """Whether the ego collided, and whether it came to a stop before the obstacle."""
-    stopped = any(float(s.ego["speed"]) < 0.3 and (s.ground_truth.get("distance_to_critical") or -1.0) > 0.0
+    stopped = any(s.ego.speed < 0.3 and (s.ground_truth.distance_to_critical or -1.0) > 0.0
                   and s.step > 0 for s in episode.steps)
     result = episode.result or {}
-    closest = [s.ground_truth.get("distance_to_critical") for s in episode.steps
-               if s.ground_truth.get("distance_to_critical") is not None]
+    closest = [s.ground_truth.distance_to_critical for s in episode.steps
+               if s.ground_truth.distance_to_critical is not None]
     return {"collided": int(result.get("collisions", 0)) > 0, "stopped": stopped,
             "terminal": result.get("terminal"), "steps": len(episode.steps),
             "min_distance": min(closest) if closest else None}
