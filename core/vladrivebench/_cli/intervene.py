@@ -105,6 +105,11 @@ def build_config(opts: dict[str, Any], registry: Any) -> Any:
         conditions = parse_names(given, "--conditions")
     else:
         conditions = tuple(paradigm.default_conditions) or ("selfsplice",)
+    checkpoints = parse_seconds(opts["checkpoints"], "--checkpoints")
+    longest = min(route.max_time_s for route in routes)
+    if mode == "closed-loop" and (beyond := [t for t in checkpoints if t >= longest]):
+        raise ConfigError(f"--checkpoints {opts['checkpoints']!r}: {beyond[0]:g} s is not within the route's "
+                          f"episode ({longest:g} s); expected checkpoints below {longest:g} s")
     return InterventionConfig(
         mode=mode, paradigm_options=paradigm_options,
         model=ComponentSpec("model", opts["model"], parse_options(opts["model_opt"], "--model-opt")),
@@ -114,7 +119,7 @@ def build_config(opts: dict[str, Any], registry: Any) -> Any:
                                  parse_options(opts["controller_opt"], "--controller-opt")),
         routes=routes, conditions=conditions, seeds=seed_list(opts["seeds"], opts["seed_offset"]),
         horizons=parse_seconds(opts["horizons"], "--horizons"),
-        checkpoints=parse_seconds(opts["checkpoints"], "--checkpoints"),
+        checkpoints=checkpoints,
         threshold=opts["threshold"], alpha=opts["alpha"], harvest_route=harvest,
         condition_files=tuple(str(Path(f)) for f in opts["condition_file"]),
         batch_conditions=opts["batch_conditions"],
