@@ -225,23 +225,197 @@ class Camera:
         shade = 0.55 + 0.45 * np.clip(normals @ SUN, 0.0, None)
         base = np.array([sd.colour for sd in solids], dtype=float)
         emissive = np.array([sd.emissive for sd in solids])
+        front_only = np.array([sd.front_only for sd in solids])
         shade[emissive] = 1.0
         face_colours = _to_uint8(base[:, None, :] * shade[..., None])  # (N, 6, rgb)
-        for n in np.flatnonzero(keep):
-            solid = solids[n]
-            for f in range(1 if solid.front_only else 6):
-                if not facing[n, f]:
-                    continue
-                corners = _FACE_CORNERS[f]
-                if all_front[n]:
-                    pu, pv = u[n, corners], v[n, corners]
+        drawn = keep[:, None] & facing
+        drawn[front_only, 1:] = False
+        solid_index, face_index = np.nonzero(drawn)  # painting order: solid by solid, faces in order
+        faces = _FaceList.from_projection(u, v, camera, all_front, solid_index, face_index, self)
+        faces.fill(image, face_colours[faces.solid, faces.face], emissive[faces.solid])
+
+
+@dataclass
+class _FaceList:
+    """The faces of one frame to fill, in painting order: polygons in pixel coordinates (each padded to the
+    longest with zero-length edges at its end) and what :func:`_fill_convex` derives from them (box, signed
+    area, centroid), computed with the same float operations in the same order, for every face at once."""
+
+    solid: np.ndarray
+    face: np.ndarray
+    edge_u: np.ndarray  # (M, K) start of each edge
+    edge_v: np.ndarray
+    edge_du: np.ndarray  # (M, K) end minus start (0 for padding)
+    edge_dv: np.ndarray
+    box: np.ndarray  # (M, 4) int: u0, u1, v0, v1 clipped to the image (u0 >= u1 or v0 >= v1: empty)
+    area: np.ndarray  # twice the signed area
+    centroid: np.ndarray  # (M, 2)
+    width: int
+    height: int
+
+    @classmethod
+    def from_projection(cls, u: np.ndarray, v: np.ndarray, camera: np.ndarray, all_front: np.ndarray,
+                        solid_index: np.ndarray, face_index: np.ndarray, cam: Camera) -> _FaceList:
+        corners = _FACE_CORNERS[face_index]  # (M, 4)
+        front = all_front[solid_index]
+        pu = np.take_along_axis(u[solid_index], corners, axis=1)
+        pv = np.take_along_axis(v[solid_index], corners, axis=1)
+        polygons: list[tuple[int, list[float], list[float]]] = []
+        for m in np.flatnonzero(~front):  # faces crossing the near plane: clipped one by one (rare)
+            polygon = _clip_near(camera[solid_index[m], _FACE_CORNERS[face_index[m]]], cam.near)
+            if len(polygon) >= 3:
+                polygons.append((int(m), (cam.cx + cam.focal * polygon[:, 0] / polygon[:, 2]).tolist(),
+                                 (cam.cy + cam.focal * polygon[:, 1] / polygon[:, 2]).tolist()))
+        rows = np.flatnonzero(front)
+        count = max([4] + [len(pu_) for _, pu_, _ in polygons])
+        keep = np.concatenate([rows, np.array([m for m, _, _ in polygons], dtype=int)])
+        order = np.argsort(keep, kind="stable")
+        n_front = len(rows)
+        edge_u = np.zeros((len(keep), count))
+        edge_v = np.zeros((len(keep), count))
+        edge_du = np.zeros((len(keep), count))
+        edge_dv = np.zeros((len(keep), count))
+        box = np.zeros((len(keep), 4), dtype=np.int64)
+        area = np.zeros(len(keep))
+        centroid = np.zeros((len(keep), 2))
+        fu, fv = pu[rows], pv[rows]
+        edge_u[:n_front, :4], edge_v[:n_front, :4] = fu, fv
+        edge_du[:n_front, :4] = np.roll(fu, -1, axis=1) - fu
+        edge_dv[:n_front, :4] = np.roll(fv, -1, axis=1) - fv
+        terms = fu * np.roll(fv, -1, axis=1) - np.roll(fu, -1, axis=1) * fv
+        area[:n_front] = ((terms[:, 0] + terms[:, 1]) + terms[:, 2]) + terms[:, 3]
+        centroid[:n_front, 0] = (((fu[:, 0] + fu[:, 1]) + fu[:, 2]) + fu[:, 3]) / 4
+        centroid[:n_front, 1] = (((fv[:, 0] + fv[:, 1]) + fv[:, 2]) + fv[:, 3]) / 4
+        box[:n_front] = _boxes(fu.min(axis=1), fu.max(axis=1), fv.min(axis=1), fv.max(axis=1), cam)
+        for row, (_, pu_, pv_) in enumerate(polygons, start=n_front):
+            n = len(pu_)
+            edge_u[row, :n], edge_v[row, :n] = pu_, pv_
+            edge_u[row, n:], edge_v[row, n:] = pu_[0], pv_[0]
+            edge_du[row, :n] = [pu_[(i + 1) % n] - pu_[i] for i in range(n)]
+            edge_dv[row, :n] = [pv_[(i + 1) % n] - pv_[i] for i in range(n)]
+            area[row] = sum(pu_[i] * pv_[(i + 1) % n] - pu_[(i + 1) % n] * pv_[i] for i in range(n))
+            centroid[row] = sum(pu_) / n, sum(pv_) / n
+            box[row] = _boxes(np.array([min(pu_)]), np.array([max(pu_)]), np.array([min(pv_)]),
+                              np.array([max(pv_)]), cam)[0]
+        picked = keep[order]
+        return cls(solid_index[picked], face_index[picked], edge_u[order], edge_v[order], edge_du[order],
+                   edge_dv[order], box[order], area[order], centroid[order], cam.width, cam.height)
+
+    def fill(self, image: np.ndarray, colours: np.ndarray, at_least_one: np.ndarray) -> None:
+        """Paint every face in order, exactly as :func:`_fill_convex` face by face would."""
+        u0, u1, v0, v1 = self.box.T
+        nonempty = (u0 < u1) & (v0 < v1)
+        solid = nonempty & (np.abs(self.area) > 1e-12)
+        small = solid & ((u1 - u0) * (v1 - v0) <= _SMALL_BOX)
+        sign = np.where(self.area > 0, 1.0, -1.0)
+        pixels, owners = [], []
+        for test, chosen in ((self._inside_small, small), (self._inside_large, solid & ~small)):
+            faces = np.flatnonzero(chosen)
+            if len(faces):
+                owner, rows, cols = _box_cells(self.box, faces)
+                inside = test(faces, owner, rows, cols, sign)
+                pixels.append(rows[inside] * self.width + cols[inside])
+                owners.append(faces[owner[inside]])
+        pixel = np.concatenate(pixels) if pixels else np.zeros(0, dtype=np.int64)
+        owner = np.concatenate(owners) if owners else np.zeros(0, dtype=np.int64)
+        painted = np.bincount(owner, minlength=len(self.area))
+        coverage = np.abs(self.area) / 2
+        cu, cv = self.centroid.T
+        blends = np.flatnonzero(nonempty & (painted == 0) & (coverage < 1.0) & (cu >= 0) & (cu < self.width)
+                                & (cv >= 0) & (cv < self.height))
+        flat = image.reshape(-1, 3)
+        blended = self._blend_pixels(flat, pixel, owner, blends, colours, at_least_one, coverage)
+        _paint_last(flat, pixel, owner, colours)
+        for index, value in blended.items():
+            flat[index] = value
+
+    def _blend_pixels(self, flat: np.ndarray, pixel: np.ndarray, owner: np.ndarray, blends: np.ndarray,
+                      colours: np.ndarray, at_least_one: np.ndarray, coverage: np.ndarray) -> dict:
+        """The final colour of every pixel a sub-pixel face blends into: the faces painting it and blending
+        into it replayed in order from the colour under all faces (the few such pixels, one by one)."""
+        if not len(blends):
+            return {}
+        cu, cv = self.centroid[blends].T
+        targets = cv.astype(np.int64) * self.width + cu.astype(np.int64)
+        events: dict[int, list] = {}
+        for face, index in zip(blends.tolist(), targets.tolist(), strict=True):
+            share = 1.0 if at_least_one[face] else coverage[face]
+            events.setdefault(index, []).append((face, share))
+        hits = np.flatnonzero(np.isin(pixel, targets))
+        for index, face in zip(pixel[hits].tolist(), owner[hits].tolist(), strict=True):
+            events[index].append((face, None))
+        result = {}
+        for index, steps in events.items():
+            value = flat[index].copy()
+            for face, share in sorted(steps, key=lambda step: step[0]):
+                if share is None:
+                    value = colours[face]
                 else:
-                    polygon = _clip_near(camera[n, corners], self.near)
-                    if len(polygon) < 3:
-                        continue
-                    pu = self.cx + self.focal * polygon[:, 0] / polygon[:, 2]
-                    pv = self.cy + self.focal * polygon[:, 1] / polygon[:, 2]
-                _fill_convex(image, pu.tolist(), pv.tolist(), face_colours[n, f], at_least_one=solid.emissive)
+                    value = _to_uint8(value * (1.0 - share) + np.asarray(colours[face], dtype=float) * share)
+            result[index] = value
+        return result
+
+    def _inside_small(self, faces, owner, rows, cols, sign):
+        """The per-pixel half-plane test of :func:`_fill_small`."""
+        f = faces[owner]
+        pu, pv = cols + 0.5, rows + 0.5
+        inside = np.ones(len(f), dtype=bool)
+        for e in range(self.edge_u.shape[1]):
+            au, av, du, dv = self.edge_u[f, e], self.edge_v[f, e], self.edge_du[f, e], self.edge_dv[f, e]
+            inside &= sign[f] * (du * (pv - av) - dv * (pu - au)) >= 0.0
+        return inside
+
+    def _inside_large(self, faces, owner, rows, cols, sign):
+        """The row-interval test of :func:`_fill_convex`: each edge bounds every row's span from one side."""
+        heights = self.box[faces, 3] - self.box[faces, 2]
+        first_row = np.concatenate([[0], np.cumsum(heights)[:-1]])
+        row_face = np.repeat(faces, heights)
+        row_centre = _PIXEL_CENTRES[np.arange(len(row_face)) - np.repeat(first_row, heights)
+                                    + np.repeat(self.box[faces, 2], heights)]
+        lo = np.full(len(row_face), -np.inf)
+        hi = np.full(len(row_face), np.inf)
+        face_sign = sign[row_face]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            for e in range(self.edge_u.shape[1]):
+                au, av = self.edge_u[row_face, e], self.edge_v[row_face, e]
+                du, dv = self.edge_du[row_face, e], self.edge_dv[row_face, e]
+                k = -face_sign * dv
+                c = face_sign * (du * (row_centre - av) + dv * au)
+                bound = -c / k
+                lo = np.where(k > 0.0, np.maximum(lo, bound), lo)
+                hi = np.where(k < 0.0, np.minimum(hi, bound), hi)
+                hi = np.where((k == 0.0) & (c < 0.0), -np.inf, hi)
+        row = first_row[owner] + rows - self.box[faces[owner], 2]
+        centres = cols + 0.5
+        return (centres >= lo[row]) & (centres <= hi[row])
+
+
+def _boxes(u_min: np.ndarray, u_max: np.ndarray, v_min: np.ndarray, v_max: np.ndarray, cam: Camera) -> np.ndarray:
+    """Pixel boxes ``max(floor(min), 0)``..``min(ceil(max), size)`` of each polygon (clipped so that an empty
+    box stays empty and fits in an int)."""
+    return np.stack([np.clip(np.floor(u_min), 0, cam.width + 1), np.clip(np.ceil(u_max), -1, cam.width),
+                     np.clip(np.floor(v_min), 0, cam.height + 1), np.clip(np.ceil(v_max), -1, cam.height)],
+                    axis=1).astype(np.int64)
+
+
+def _box_cells(box: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(index into ``faces``, row, column) of every pixel in each face's box, face by face, row-major."""
+    u0, u1, v0, v1 = box[faces].T
+    widths, heights = u1 - u0, v1 - v0
+    cells = widths * heights
+    owner = np.repeat(np.arange(len(faces)), cells)
+    local = np.arange(int(cells.sum())) - np.repeat(np.cumsum(cells) - cells, cells)
+    w = widths[owner]
+    return owner, v0[owner] + local // w, u0[owner] + local % w
+
+
+def _paint_last(flat: np.ndarray, pixels: np.ndarray, owners: np.ndarray, colours: np.ndarray) -> None:
+    """Paint each of ``pixels`` with the colour of the last (highest) of its ``owners``: painter's order."""
+    if len(pixels):
+        winner = np.full(len(flat), -1, dtype=np.int64)
+        np.maximum.at(winner, pixels, owners)
+        painted = np.flatnonzero(winner >= 0)
+        flat[painted] = colours[winner[painted]]
 
 
 def _clip_near(polygon: np.ndarray, near: float) -> np.ndarray:
