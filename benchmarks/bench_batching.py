@@ -20,6 +20,7 @@ The machine may be shared: read the ratios of one run rather than absolute numbe
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import tempfile
 import time
@@ -35,27 +36,76 @@ def scenario(name: str, seconds: float):
     return dataclasses.replace(load_suite(get_registry())[name], max_time_s=seconds)
 
 
-def closed_loop(model_name: str, batch: int, steps: int, out: Path) -> tuple[float, float]:
-    """(episode steps per second, share of the wall time outside the model) for ``batch`` episodes."""
+HARNESS_PARTS = ("render", "sim", "control", "truth", "logging", "loop")
+"""The parts of a step outside the model: camera rendering, the rest of the simulator's step, the
+controller, the ground truth, MCAP logging and the episode loop itself (validation, tallies, batching)."""
+
+
+class StepTimer:
+    """Seconds spent in each part of the closed loop, by wrapping the calls of one run."""
+
+    def __init__(self):
+        self.seconds = dict.fromkeys(("model",) + HARNESS_PARTS, 0.0)
+
+    def wrap(self, part: str, function):
+        def timed(*args, **kwargs):
+            started = time.perf_counter()
+            try:
+                return function(*args, **kwargs)
+            finally:
+                self.seconds[part] += time.perf_counter() - started
+        return timed
+
+    @contextlib.contextmanager
+    def patched(self, owner, name: str, part: str):
+        """Time every call of ``owner.name`` (a class's method) while the block runs."""
+        original = getattr(owner, name)
+        setattr(owner, name, self.wrap(part, original))
+        try:
+            yield
+        finally:
+            setattr(owner, name, original)
+
+    def shares(self, wall: float) -> dict[str, float]:
+        """Each harness part's share of the wall time; ``sim`` excludes the rendering and ground truth it
+        calls, ``loop`` is what no other part accounts for."""
+        parts = dict(self.seconds)
+        parts["sim"] -= parts["render"] + parts["truth"]
+        parts["loop"] = wall - sum(v for k, v in parts.items() if k != "loop")
+        return {k: parts[k] / wall for k in HARNESS_PARTS}
+
+
+def closed_loop(model_name: str, batch: int, steps: int, out: Path) -> tuple[float, float, dict[str, float]]:
+    """(episode steps per second, share of the wall time outside the model, that share by harness part)
+    for ``batch`` episodes of ``steps`` steps."""
     from vladrivebench._engine.registry import get_registry
-    from vladrivebench._engine.runner import LockstepEpisode, own_cot_batch_policy, run_episode, run_lockstep
+    from vladrivebench._engine.runner import (
+        LockstepEpisode,
+        own_cot_batch_policy,
+        own_cot_policy,
+        run_episode,
+        run_lockstep,
+    )
     from vladrivebench._logs.episodes import EpisodeWriter
+    from vladrivebench.world import TruthTracker
+    from vladrivebench.world._camera import Camera
 
     registry = get_registry()
     model = registry.create("model", model_name)
     road = scenario("P.1", steps / 10.0)
-    lanes = [(registry.create("simulator", "kinematic"), registry.create("controller", "mpc")) for _ in range(batch)]
-    model_time = [0.0]
-
-    def timed_policy(model, observations, seeds):
-        started = time.perf_counter()
-        try:
-            return own_cot_batch_policy(model, observations, seeds)
-        finally:
-            model_time[0] += time.perf_counter() - started
+    timer = StepTimer()
+    lanes = []
+    for _ in range(batch):
+        simulator, controller = registry.create("simulator", "kinematic"), registry.create("controller", "mpc")
+        simulator.step = timer.wrap("sim", simulator.step)
+        simulator.reset = timer.wrap("sim", simulator.reset)
+        controller.control = timer.wrap("control", controller.control)
+        lanes.append((simulator, controller))
 
     def writer(i: int):
-        return EpisodeWriter(out / f"{model_name}-{batch}-{i}.mcap", {"episode_id": str(i)})
+        log = EpisodeWriter(out / f"{model_name}-{batch}-{i}.mcap", {"episode_id": str(i)})
+        log.write_step = timer.wrap("logging", log.write_step)
+        return log
 
     results = []
 
@@ -63,27 +113,20 @@ def closed_loop(model_name: str, batch: int, steps: int, out: Path) -> tuple[flo
         open_writer.finish(result.to_json())
         results.append(result)
 
-    started = time.perf_counter()
-    if batch == 1:
-        from vladrivebench._engine.runner import own_cot_policy
-
-        def timed_single(model, obs, seed):
-            t0 = time.perf_counter()
-            try:
-                return own_cot_policy(model, obs, seed)
-            finally:
-                model_time[0] += time.perf_counter() - t0
-
-        with writer(0) as w:
-            result = run_episode(model, *lanes[0], road, 0, policy=timed_single, writer=w)
-            w.finish(result.to_json())
-        results.append(result)
-    else:
-        episodes = [LockstepEpisode(i, road, i, (lambda i=i: writer(i).__enter__())) for i in range(batch)]
-        run_lockstep(episodes, batch, make_lane=lambda i: (model, *lanes[i]), done=done, batch_policy=timed_policy)
-    wall = time.perf_counter() - started
+    with timer.patched(Camera, "render", "render"), timer.patched(TruthTracker, "observe", "truth"):
+        started = time.perf_counter()
+        if batch == 1:
+            with writer(0) as w:
+                result = run_episode(model, *lanes[0], road, 0, policy=timer.wrap("model", own_cot_policy), writer=w)
+                w.finish(result.to_json())
+            results.append(result)
+        else:
+            episodes = [LockstepEpisode(i, road, i, (lambda i=i: writer(i).__enter__())) for i in range(batch)]
+            run_lockstep(episodes, batch, make_lane=lambda i: (model, *lanes[i]), done=done,
+                         batch_policy=timer.wrap("model", own_cot_batch_policy))
+        wall = time.perf_counter() - started
     total_steps = sum(r.steps for r in results)
-    return total_steps / wall, 1.0 - model_time[0] / wall
+    return total_steps / wall, 1.0 - timer.seconds["model"] / wall, timer.shares(wall)
 
 
 def sweep_difference(batch: int, seconds_per_episode: float) -> tuple[float, int, int, float, float]:
@@ -136,12 +179,13 @@ def main() -> None:
         for model in ("kv", "qa"):
             base = model_base = None
             for batch in sizes:
-                rate, harness = closed_loop(model, batch, args.steps, Path(tmp))
+                rate, harness, parts = closed_loop(model, batch, args.steps, Path(tmp))
                 model_rate = rate / (1.0 - harness)  # episode-steps per second of model time alone
                 base, model_base = base or rate, model_base or model_rate
+                breakdown = "  ".join(f"{k} {100 * v:4.1f}" for k, v in parts.items())
                 print(f"{model} B={batch:>3}: {rate:7.1f} episode-steps/s  ×{rate / base:5.2f} vs B={sizes[0]}  "
-                      f"(model time alone ×{model_rate / model_base:5.2f})  harness {100 * harness:4.1f} % of the step",
-                      flush=True)
+                      f"(model time alone ×{model_rate / model_base:5.2f})  harness {100 * harness:4.1f} % of the "
+                      f"step: {breakdown} %", flush=True)
     if not args.skip_sweep:
         worst, differing, compared, one, sixteen = sweep_difference(16, args.sweep_seconds)
         print(f"kv sweep (P.1, C.1, TL.1-red, E.1 × 4 seeds, ≤ {args.sweep_seconds:g} s each) B=1 vs B=16: largest waypoint difference "

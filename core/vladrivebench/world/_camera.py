@@ -11,6 +11,7 @@ the lane ahead covers a large block.
 from __future__ import annotations
 
 import math
+import weakref
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 
@@ -70,6 +71,52 @@ class Solid:
     colour: tuple[float, float, float]
     emissive: bool = False
     front_only: bool = False
+
+
+
+@dataclass(frozen=True)
+class _SolidGroup:
+    """Solids drawn together (one actor's or one prop's), as arrays, with their mean position: groups are
+    painted farthest first."""
+
+    params: np.ndarray  # (N, 7): x, y, yaw, length, width, z0, z1
+    colours: np.ndarray  # (N, 3) float
+    emissive: np.ndarray  # (N,) bool
+    front_only: np.ndarray  # (N,) bool
+    x: float
+    y: float
+
+    @property
+    def count(self) -> int:
+        return len(self.params)
+
+    @classmethod
+    def of(cls, solids: Sequence[Solid]) -> _SolidGroup:
+        count = max(len(solids), 1)
+        return cls(np.array([(sd.x, sd.y, sd.yaw, sd.length, sd.width, sd.z0, sd.z1) for sd in solids],
+                            dtype=float).reshape(-1, 7),
+                   np.array([sd.colour for sd in solids], dtype=float).reshape(-1, 3),
+                   np.array([sd.emissive for sd in solids], dtype=bool), np.array([sd.front_only for sd in solids],
+                                                                                  dtype=bool),
+                   sum(sd.x for sd in solids) / count, sum(sd.y for sd in solids) / count)
+
+    @classmethod
+    def joined(cls, groups: Sequence[_SolidGroup]) -> _SolidGroup:
+        return cls(np.concatenate([g.params for g in groups]), np.concatenate([g.colours for g in groups]),
+                   np.concatenate([g.emissive for g in groups]), np.concatenate([g.front_only for g in groups]),
+                   0.0, 0.0)
+
+
+_PROP_GROUPS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def _road_prop_groups(road: RoadGeometry) -> list[tuple[float, float, _SolidGroup]]:
+    """(x, y, solids) of every prop of ``road``: the scenery never changes, so it is built once per road."""
+    groups = _PROP_GROUPS.get(road)
+    if groups is None:
+        groups = [(prop.x, prop.y, _SolidGroup.of(solids_for_prop(prop, i))) for i, prop in enumerate(road.props)]
+        _PROP_GROUPS[road] = groups
+    return groups
 
 
 _UNIT_CORNERS = np.array(
@@ -152,11 +199,15 @@ class Camera:
         gy = ego.y + s * self._ground_fwd + c * self._ground_left
         image[self._ground_index] = self._ground_lut[self._ground_rows, road.classify(gx, gy)]
         image = image.reshape(self.height, self.width, 3)
-        groups = [solids_for_actor(a) for a in actors]
+        groups = [_SolidGroup.of(solids_for_actor(a)) for a in actors]
         cam_x, cam_y, _ = self.camera_position(ego)
-        for i, prop in enumerate(road.props if props is None else props):
-            if math.hypot(prop.x - cam_x, prop.y - cam_y) <= PROP_RANGE:
-                groups.append(solids_for_prop(prop, i))
+        if props is None:
+            scenery = _road_prop_groups(road)
+        else:
+            scenery = [(prop.x, prop.y, _SolidGroup.of(solids_for_prop(prop, i))) for i, prop in enumerate(props)]
+        for x, y, group in scenery:
+            if math.hypot(x - cam_x, y - cam_y) <= PROP_RANGE:
+                groups.append(group)
         self._draw_groups(image, ego, groups)
         return image
 
@@ -172,18 +223,13 @@ class Camera:
         return np.array([x, y, self.mount_height])
 
     # -- drawing ------------------------------------------------------------------------------------
-    def _draw_groups(self, image: np.ndarray, ego: EgoState, groups: list[list[Solid]]) -> None:
+    def _draw_groups(self, image: np.ndarray, ego: EgoState, groups: list[_SolidGroup]) -> None:
         cam = self.camera_position(ego)
-        ordered = []
-        for index, group in enumerate(groups):
-            if group:
-                gx = sum(sd.x for sd in group) / len(group)
-                gy = sum(sd.y for sd in group) / len(group)
-                ordered.append((-math.hypot(gx - cam[0], gy - cam[1]), index))
+        ordered = [(-math.hypot(group.x - cam[0], group.y - cam[1]), index)
+                   for index, group in enumerate(groups) if group.count]
         ordered.sort()
-        solids = [solid for _, index in ordered for solid in groups[index]]
-        if solids:
-            self._draw_solids(image, ego, cam, solids)
+        if ordered:
+            self._draw_solids(image, ego, cam, _SolidGroup.joined([groups[index] for _, index in ordered]))
 
     def _to_camera(self, ego: EgoState, points: np.ndarray) -> np.ndarray:
         """World points (..., 3) → camera frame (..., 3): (right, down, depth along the optical axis)."""
@@ -200,10 +246,9 @@ class Camera:
         cp, sp = math.cos(self.pitch), math.sin(self.pitch)
         return np.stack([-left, -fwd * sp + down * cp, fwd * cp + down * sp], axis=-1)
 
-    def _draw_solids(self, image: np.ndarray, ego: EgoState, cam: np.ndarray, solids: list[Solid]) -> None:
+    def _draw_solids(self, image: np.ndarray, ego: EgoState, cam: np.ndarray, solids: _SolidGroup) -> None:
         """Project every solid at once, cull what is out of view, then fill the visible faces in order."""
-        params = np.array([(sd.x, sd.y, sd.yaw, sd.length, sd.width, sd.z0, sd.z1) for sd in solids])
-        x, y, yaw, length, width, z0, z1 = params.T
+        x, y, yaw, length, width, z0, z1 = solids.params.T
         c, s = np.cos(yaw)[:, None], np.sin(yaw)[:, None]
         lx = _UNIT_CORNERS[:, 0] * (length[:, None] / 2)
         ly = _UNIT_CORNERS[:, 1] * (width[:, None] / 2)
@@ -223,9 +268,7 @@ class Camera:
         face_centres = world[:, _FACE_CORNERS].mean(axis=2)
         facing = np.einsum("nfk,nfk->nf", normals, cam - face_centres) > 0.0
         shade = 0.55 + 0.45 * np.clip(normals @ SUN, 0.0, None)
-        base = np.array([sd.colour for sd in solids], dtype=float)
-        emissive = np.array([sd.emissive for sd in solids])
-        front_only = np.array([sd.front_only for sd in solids])
+        base, emissive, front_only = solids.colours, solids.emissive, solids.front_only
         shade[emissive] = 1.0
         face_colours = _to_uint8(base[:, None, :] * shade[..., None])  # (N, 6, rgb)
         drawn = keep[:, None] & facing
@@ -309,13 +352,17 @@ class _FaceList:
         small = solid & ((u1 - u0) * (v1 - v0) <= _SMALL_BOX)
         sign = np.where(self.area > 0, 1.0, -1.0)
         pixels, owners = [], []
-        for test, chosen in ((self._inside_small, small), (self._inside_large, solid & ~small)):
-            faces = np.flatnonzero(chosen)
-            if len(faces):
-                owner, rows, cols = _box_cells(self.box, faces)
-                inside = test(faces, owner, rows, cols, sign)
-                pixels.append(rows[inside] * self.width + cols[inside])
-                owners.append(faces[owner[inside]])
+        faces = np.flatnonzero(small)
+        if len(faces):
+            owner, rows, cols = _box_cells(self.box, faces)
+            inside = self._inside_small(faces, owner, rows, cols, sign)
+            pixels.append(rows[inside] * self.width + cols[inside])
+            owners.append(faces[owner[inside]])
+        faces = np.flatnonzero(solid & ~small)
+        if len(faces):
+            pixel, owner = self._spans_large(faces, sign)
+            pixels.append(pixel)
+            owners.append(owner)
         pixel = np.concatenate(pixels) if pixels else np.zeros(0, dtype=np.int64)
         owner = np.concatenate(owners) if owners else np.zeros(0, dtype=np.int64)
         painted = np.bincount(owner, minlength=len(self.area))
@@ -365,30 +412,40 @@ class _FaceList:
             inside &= sign[f] * (du * (pv - av) - dv * (pu - au)) >= 0.0
         return inside
 
-    def _inside_large(self, faces, owner, rows, cols, sign):
-        """The row-interval test of :func:`_fill_convex`: each edge bounds every row's span from one side."""
-        heights = self.box[faces, 3] - self.box[faces, 2]
-        first_row = np.concatenate([[0], np.cumsum(heights)[:-1]])
-        row_face = np.repeat(faces, heights)
-        row_centre = _PIXEL_CENTRES[np.arange(len(row_face)) - np.repeat(first_row, heights)
-                                    + np.repeat(self.box[faces, 2], heights)]
+    def _spans_large(self, faces: np.ndarray, sign: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(flat pixel, face) painted by each of ``faces`` with the row-interval test of :func:`_fill_convex`:
+        each edge bounds every row's span from one side; a row paints the columns whose centre lies in
+        ``[lo, hi]``, found from an estimate corrected by that exact comparison."""
+        u0, u1, v0, v1 = self.box[faces].T
+        heights = v1 - v0
+        row_face = np.repeat(np.arange(len(faces)), heights)
+        row = np.arange(len(row_face)) - np.repeat(np.cumsum(heights) - heights, heights) + v0[row_face]
+        row_centre = _PIXEL_CENTRES[row]
         lo = np.full(len(row_face), -np.inf)
         hi = np.full(len(row_face), np.inf)
-        face_sign = sign[row_face]
+        face = faces[row_face]
+        face_sign = sign[face]
         with np.errstate(divide="ignore", invalid="ignore"):
             for e in range(self.edge_u.shape[1]):
-                au, av = self.edge_u[row_face, e], self.edge_v[row_face, e]
-                du, dv = self.edge_du[row_face, e], self.edge_dv[row_face, e]
+                au, av = self.edge_u[face, e], self.edge_v[face, e]
+                du, dv = self.edge_du[face, e], self.edge_dv[face, e]
                 k = -face_sign * dv
                 c = face_sign * (du * (row_centre - av) + dv * au)
                 bound = -c / k
                 lo = np.where(k > 0.0, np.maximum(lo, bound), lo)
                 hi = np.where(k < 0.0, np.minimum(hi, bound), hi)
                 hi = np.where((k == 0.0) & (c < 0.0), -np.inf, hi)
-        row = first_row[owner] + rows - self.box[faces[owner], 2]
-        centres = cols + 0.5
-        return (centres >= lo[row]) & (centres <= hi[row])
-
+        first, last = u0[row_face], u1[row_face]
+        start = np.minimum(np.maximum(np.ceil(lo - 0.5), first), last).astype(np.int64)
+        start = np.where((start > first) & (start - 0.5 >= lo), start - 1, start)  # column start-1 is inside
+        start = np.where((start < last) & (start + 0.5 < lo), start + 1, start)  # column start is outside
+        end = np.minimum(np.maximum(np.floor(hi - 0.5) + 1, first), last).astype(np.int64)
+        end = np.where((end < last) & (end + 0.5 <= hi), end + 1, end)  # column end is inside
+        end = np.where((end > first) & (end - 0.5 > hi), end - 1, end)  # column end-1 is outside
+        widths = np.maximum(end - start, 0)
+        span = np.repeat(np.arange(len(row_face)), widths)
+        column = np.arange(len(span)) - np.repeat(np.cumsum(widths) - widths, widths) + start[span]
+        return row[span] * self.width + column, face[span]
 
 def _boxes(u_min: np.ndarray, u_max: np.ndarray, v_min: np.ndarray, v_max: np.ndarray, cam: Camera) -> np.ndarray:
     """Pixel boxes ``max(floor(min), 0)``..``min(ceil(max), size)`` of each polygon (clipped so that an empty
