@@ -132,6 +132,7 @@ _FACES = (  # (corner indices counter-clockwise seen from outside, local outward
 )
 _FACE_CORNERS = np.array([corners for corners, _ in _FACES])
 _FACE_NORMALS = np.array([normal for _, normal in _FACES])
+_NEXT_CORNER = np.array([1, 2, 3, 0])
 
 
 class Camera:
@@ -182,6 +183,8 @@ class Camera:
         hazed = MATERIAL_COLOURS[None] * (1 - haze[:, None, None]) + HAZE * haze[:, None, None]
         self._ground_lut = _to_uint8(hazed)
         self._ground_rows = np.arange(len(self._ground_index))
+        self._ground_lut_flat = self._ground_lut.reshape(-1, 3)  # row = pixel * materials + material
+        self._ground_base = self._ground_rows * self._ground_lut.shape[1]
         # Sky: a vertical gradient by elevation, and haze at the horizon where the ground ran out of range.
         elevation = np.clip(-down_e / np.maximum(np.hypot(forward_e, down_e), 1e-9), 0.0, 1.0)
         blend = np.sqrt(elevation)[..., None]
@@ -197,7 +200,7 @@ class Camera:
         c, s = math.cos(ego.yaw), math.sin(ego.yaw)
         gx = ego.x + c * self._ground_fwd - s * self._ground_left
         gy = ego.y + s * self._ground_fwd + c * self._ground_left
-        image[self._ground_index] = self._ground_lut[self._ground_rows, road.classify(gx, gy)]
+        image[self._ground_index] = self._ground_lut_flat.take(self._ground_base + road.classify(gx, gy), axis=0)
         image = image.reshape(self.height, self.width, 3)
         groups = [_SolidGroup.of(solids_for_actor(a)) for a in actors]
         cam_x, cam_y, _ = self.camera_position(ego)
@@ -322,10 +325,11 @@ class _FaceList:
         area = np.zeros(len(keep))
         centroid = np.zeros((len(keep), 2))
         fu, fv = pu[rows], pv[rows]
+        nu, nv = fu[:, _NEXT_CORNER], fv[:, _NEXT_CORNER]
         edge_u[:n_front, :4], edge_v[:n_front, :4] = fu, fv
-        edge_du[:n_front, :4] = np.roll(fu, -1, axis=1) - fu
-        edge_dv[:n_front, :4] = np.roll(fv, -1, axis=1) - fv
-        terms = fu * np.roll(fv, -1, axis=1) - np.roll(fu, -1, axis=1) * fv
+        edge_du[:n_front, :4] = nu - fu
+        edge_dv[:n_front, :4] = nv - fv
+        terms = fu * nv - nu * fv
         area[:n_front] = ((terms[:, 0] + terms[:, 1]) + terms[:, 2]) + terms[:, 3]
         centroid[:n_front, 0] = (((fu[:, 0] + fu[:, 1]) + fu[:, 2]) + fu[:, 3]) / 4
         centroid[:n_front, 1] = (((fv[:, 0] + fv[:, 1]) + fv[:, 2]) + fv[:, 3]) / 4
@@ -392,13 +396,16 @@ class _FaceList:
         for index, face in zip(pixel[hits].tolist(), owner[hits].tolist(), strict=True):
             events[index].append((face, None))
         result = {}
+        palette = colours.tolist()
         for index, steps in events.items():
-            value = flat[index].copy()
+            value = flat[index].tolist()
             for face, share in sorted(steps, key=lambda step: step[0]):
                 if share is None:
-                    value = colours[face]
-                else:
-                    value = _to_uint8(value * (1.0 - share) + np.asarray(colours[face], dtype=float) * share)
+                    value = palette[face]
+                else:  # _to_uint8 of the blend, channel by channel in the same float operations
+                    share = float(share)
+                    value = [int(min(max(a * (1.0 - share) + b * share + 0.5, 0.0), 255.0))
+                             for a, b in zip(value, palette[face], strict=True)]
             result[index] = value
         return result
 

@@ -223,10 +223,12 @@ class RoadGeometry:
     def road_offset(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
         """How far the road would have to grow to contain each point (≤ 0: on the road)."""
         x, y = np.asarray(x, dtype=float), np.asarray(y, dtype=float)
+        return self._road_offset(x, y, [arm.local(x, y) for arm in self.arms])
+
+    def _road_offset(self, x: np.ndarray, y: np.ndarray, frames: list[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
         half = self.half_width
         m = np.full(np.broadcast(x, y).shape, np.inf)
-        for arm in self.arms:
-            along, lat = arm.local(x, y)
+        for arm, (along, lat) in zip(self.arms, frames, strict=True):
             inside = (along >= arm.start) & (along <= arm.end)
             m = np.minimum(m, np.where(inside, np.abs(lat) - half, np.inf))
         if self.junction is not None:
@@ -242,20 +244,21 @@ class RoadGeometry:
 
     def classify(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
         """Ground material (:data:`GRASS` … :data:`MARK_YELLOW`) at world points, as uint8."""
-        m = self.road_offset(x, y)
+        x, y = np.asarray(x, dtype=float), np.asarray(y, dtype=float)
+        frames = [arm.local(x, y) for arm in self.arms]  # each arm's (along, lateral), shared by both passes
+        m = self._road_offset(x, y, frames)
         out = np.full(m.shape, GRASS, dtype=np.uint8)
         out[m <= self.sidewalk_width] = SIDEWALK
         out[m <= KERB_WIDTH] = KERB
         road = m <= 0.0
         out[road] = ROAD
         if np.any(road):
-            self._paint(np.asarray(x, dtype=float), np.asarray(y, dtype=float), road, out)
+            self._paint(frames, road, out)
         return out
 
-    def _paint(self, x: np.ndarray, y: np.ndarray, road: np.ndarray, out: np.ndarray) -> None:
+    def _paint(self, frames: list[tuple[np.ndarray, np.ndarray]], road: np.ndarray, out: np.ndarray) -> None:
         w = self.lane_width
-        for index, arm in enumerate(self.arms):
-            along, lat = arm.local(x, y)
+        for index, (arm, (along, lat)) in enumerate(zip(self.arms, frames, strict=True)):
             on_arm = road & (along >= arm.marked_from) & (along <= arm.end) & (np.abs(lat) <= self.half_width)
             if not np.any(on_arm):
                 continue
