@@ -173,7 +173,10 @@ def _road_entity(obs: Observation, when: dict[str, int]) -> dict[str, Any] | Non
     if len(ahead) < 2:
         return None
     sampled = list(ahead[::ROAD_SAMPLE]) + ([ahead[-1]] if (len(ahead) - 1) % ROAD_SAMPLE else [])
-    points = [_vector(*obs.ego.to_world_frame(float(x), float(y)), 0.0) for x, y in sampled]
+    ego = obs.ego
+    c, s = math.cos(ego.yaw), math.sin(ego.yaw)  # EgoState.to_world_frame, its sine and cosine taken once
+    points = [_vector(ego.x + c * ex - s * ey, ego.y + s * ex + c * ey, 0.0)
+              for ex, ey in ((float(x), float(y)) for x, y in sampled)]
     line = {"type": _LINE_STRIP, "pose": _pose(0.0, 0.0, 0.0, 0.0), "scale_invariant": False, "colors": [],
             "indices": []}
     surface = {**line, "thickness": LANE_WIDTH, "points": points, "color": _colour((0.35, 0.35, 0.38), 0.8)}

@@ -85,6 +85,7 @@ class TruthTracker:
         self._s_centre: float | None = None
         self._prev_front: float | None = None
         self._stopped_before_sign = False
+        self._last_extents: dict[Actor, RouteExtent] = {}
         critical = scenario.actor(scenario.critical) if scenario.critical else None
         self.critical_fixed_s: float | None = None
         if scenario.light is not None and scenario.critical == scenario.light.id:
@@ -103,12 +104,18 @@ class TruthTracker:
         s, _ = self.road.route.project(np.array([[ego.x, ego.y]]), lo, hi)
         return float(s[0])
 
+    def _extent(self, actor: Actor) -> RouteExtent:
+        """:func:`route_extent`, reused from the previous step for an actor that has not changed (parked)."""
+        extent = self._last_extents.get(actor)
+        return extent if extent is not None else route_extent(self.road, actor)
+
     def observe(self, step: int, ego: EgoState, actors: Sequence[Actor],
                 collisions: Sequence[str] = ()) -> GroundTruth:
         """The ground truth after the ego and ``actors`` (road users, without features) reached this state."""
         s_centre = self.ego_s(ego)
         front = s_centre + ego.length / 2
-        extents = {a.actor_id: route_extent(self.road, a) for a in actors}
+        extents = {a.actor_id: self._extent(a) for a in actors}
+        self._last_extents = {a: extents[a.actor_id] for a in actors}
         critical = self.scenario.critical
         distance = blocking = None
         if critical is not None:
