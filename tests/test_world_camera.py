@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 import pytest
+import vladrivebench.world._camera as camera_module
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from vladrivebench._scenarios.spec import parse_scenario
@@ -150,3 +151,37 @@ def test_fill_convex_paints_exactly_the_pixel_centres_inside(cx, cy, a, b, angle
         assert painted == int(full.sum()) == int((image[..., 0] > 0).sum())
     else:  # smaller than a pixel: blended into at most one pixel by the area it covers
         assert painted <= 1 and int((image[..., 0] > 0).sum()) == painted
+
+
+def _fill_face_by_face(faces, image, colours, at_least_one):
+    """The reference: every face through :func:`_fill_convex`, one after the other."""
+    for m in range(len(faces.area)):
+        u, v = faces.polygon(m)
+        _fill_convex(image, u, v, colours[m], at_least_one=bool(at_least_one[m]))
+
+
+actor_kinds = st.sampled_from(("pedestrian", "car", "animal", "traffic_light", "stop_sign", "cone"))
+scene_actors = st.lists(st.tuples(actor_kinds, st.floats(-3.0, 120.0), st.floats(-25.0, 25.0),
+                                  st.floats(-math.pi, math.pi), st.floats(0.05, 6.0), st.floats(0.05, 3.0),
+                                  st.floats(0.1, 5.0), st.sampled_from(("red", "yellow", "green"))),
+                        min_size=1, max_size=12)
+
+
+@given(scene_actors, st.sampled_from([(160, 80, 90.0), (33, 17, 150.0), (97, 41, 30.0)]))
+@settings(max_examples=60, deadline=None)
+def test_the_vectorised_face_fill_paints_what_filling_face_by_face_paints(road, monkeypatch_faces, actors, size):
+    """Painter's order, sub-pixel blends, near-plane clipping: the one-pass fill equals the face-by-face one."""
+    width, height, hfov = size
+    camera = Camera(width, height, hfov)
+    scene = [Actor(f"a{i}", kind, x, y, yaw, ln, wd, h, state=state if kind == "traffic_light" else None)
+             for i, (kind, x, y, yaw, ln, wd, h, state) in enumerate(actors)]
+    fast = camera.render(road, EGO, scene)
+    with monkeypatch_faces() as patch:
+        patch.setattr(camera_module._FaceList, "fill", _fill_face_by_face)
+        reference = camera.render(road, EGO, scene)
+    assert np.array_equal(fast, reference)
+
+
+@pytest.fixture(scope="module")
+def monkeypatch_faces():
+    return pytest.MonkeyPatch.context

@@ -296,6 +296,7 @@ class _FaceList:
     box: np.ndarray  # (M, 4) int: u0, u1, v0, v1 clipped to the image (u0 >= u1 or v0 >= v1: empty)
     area: np.ndarray  # twice the signed area
     centroid: np.ndarray  # (M, 2)
+    counts: np.ndarray  # (M,) vertices of each polygon (the rest of its row is padding)
     width: int
     height: int
 
@@ -345,8 +346,15 @@ class _FaceList:
             box[row] = _boxes(np.array([min(pu_)]), np.array([max(pu_)]), np.array([min(pv_)]),
                               np.array([max(pv_)]), cam)[0]
         picked = keep[order]
+        counts = np.array([4] * n_front + [len(pu_) for _, pu_, _ in polygons], dtype=np.int64)
         return cls(solid_index[picked], face_index[picked], edge_u[order], edge_v[order], edge_du[order],
-                   edge_dv[order], box[order], area[order], centroid[order], cam.width, cam.height)
+                   edge_dv[order], box[order], area[order], centroid[order], counts[order], cam.width,
+                   cam.height)
+
+    def polygon(self, m: int) -> tuple[list[float], list[float]]:
+        """Face ``m``'s vertices (u, v) in pixel coordinates."""
+        count = int(self.counts[m])
+        return self.edge_u[m, :count].tolist(), self.edge_v[m, :count].tolist()
 
     def fill(self, image: np.ndarray, colours: np.ndarray, at_least_one: np.ndarray) -> None:
         """Paint every face in order, exactly as :func:`_fill_convex` face by face would."""
