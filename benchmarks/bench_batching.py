@@ -1,5 +1,5 @@
-"""Lockstep batches (`vdb run --batch B`): closed-loop throughput, harness share, batched-vs-unbatched
-difference and the demo's wall time, all measured in one run.
+"""Lockstep batches (`vdb run --batch B`): closed-loop throughput, the harness's share broken down,
+the renderer alone, batched-vs-unbatched difference and the demo's wall time, all measured in one run.
 
     python benchmarks/bench_batching.py [--steps 20] [--sizes 1,4,16,64] [--sweep-seconds 5] [--skip-sweep]
                                         [--skip-demo]
@@ -7,12 +7,15 @@ difference and the demo's wall time, all measured in one run.
 1. Closed-loop steps per second of ``kv`` and ``qa`` on the kinematic simulator (camera rendered, MPC
    controller, every step logged to MCAP) at B = 1 (today's per-episode path, ``run_episode``) and at
    B = 4, 16, 64 in lockstep (``run_lockstep``, one batched model call per step); the speed-up against B = 1.
-2. The harness (simulator, rendering, control, logging: everything but the model's batched calls) as a
-   share of a batched step.
-3. The largest waypoint difference between a sweep run at B = 1 and at B = 16 (the demo's scenarios ×
+2. The harness (everything but the model's calls) as a share of the step's wall time, by part: ``render``
+   (the camera), ``sim`` (the rest of the simulator's step: motion, collisions, history), ``control`` (the
+   MPC controller), ``truth`` (the ground truth), ``logging`` (MCAP writing) and ``loop`` (the episode
+   loop itself: validation, tallies, lockstep bookkeeping).
+3. The camera rendering alone, CPU milliseconds per step, front camera and ``alpamayo`` rig.
+4. The largest waypoint difference between a sweep run at B = 1 and at B = 16 (the demo's scenarios ×
    4 seeds with ``kv``, each cut to ``--sweep-seconds``), over the steps both runs share, and how many
    CoTs differ.
-4. ``vdb demo``'s wall time (its episodes, as the demo declares its batch size).
+5. ``vdb demo``'s wall time (its episodes, as the demo declares its batch size).
 
 The machine may be shared: read the ratios of one run rather than absolute numbers.
 """
@@ -129,6 +132,30 @@ def closed_loop(model_name: str, batch: int, steps: int, out: Path) -> tuple[flo
     return total_steps / wall, 1.0 - timer.seconds["model"] / wall, timer.shares(wall)
 
 
+def render_milliseconds(frames: int = 30) -> dict[str, float]:
+    """CPU milliseconds per step of the camera rendering alone, along P.1 (suburban) and S.3 (urban junction),
+    for the default front camera and the four-camera ``alpamayo`` rig."""
+    from vdb_sim_kinematic.simulator import KinematicSimulator
+    from vladrivebench.records import Control
+
+    out = {}
+    for rig in ("front", "alpamayo"):
+        jobs = []
+        for name in ("P.1", "S.3"):
+            simulator = KinematicSimulator(rig=rig)
+            obs = simulator.reset(scenario(name, 30.0), 0)
+            for _ in range(frames // 2):
+                jobs.append((simulator, obs.ego, obs.ground_truth.actors))
+                obs = simulator.step(Control(0.0, 0.0, 0.0, 6.0, next_state=dataclasses.replace(
+                    obs.ego, x=obs.ego.x + 0.6)))
+        started = time.process_time()
+        for simulator, ego, actors in jobs:
+            for camera in simulator.rig.cameras.values():
+                camera.render(simulator.road, ego, actors)
+        out[rig] = (time.process_time() - started) / len(jobs) * 1e3
+    return out
+
+
 def sweep_difference(batch: int, seconds_per_episode: float) -> tuple[float, int, int, float, float]:
     """(largest waypoint difference in m, differing CoTs, compared steps, seconds at B=1, at B=batch)."""
     from vladrivebench._engine.executors import SequentialExecutor
@@ -186,6 +213,9 @@ def main() -> None:
                 print(f"{model} B={batch:>3}: {rate:7.1f} episode-steps/s  ×{rate / base:5.2f} vs B={sizes[0]}  "
                       f"(model time alone ×{model_rate / model_base:5.2f})  harness {100 * harness:4.1f} % of the "
                       f"step: {breakdown} %", flush=True)
+    rendering = render_milliseconds()
+    print(f"camera rendering alone (CPU): {rendering['front']:.2f} ms per step for the front camera (160×80), "
+          f"{rendering['alpamayo']:.2f} ms for the alpamayo rig (4 × 576×320)", flush=True)
     if not args.skip_sweep:
         worst, differing, compared, one, sixteen = sweep_difference(16, args.sweep_seconds)
         print(f"kv sweep (P.1, C.1, TL.1-red, E.1 × 4 seeds, ≤ {args.sweep_seconds:g} s each) B=1 vs B=16: largest waypoint difference "

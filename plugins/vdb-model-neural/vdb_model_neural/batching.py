@@ -117,7 +117,7 @@ def _greedy(logits: torch.Tensor, banned: torch.Tensor) -> list[int]:
     logits = logits.clone()
     if len(banned):
         logits[:, banned] = float("-inf")
-    return [int(t) for t in torch.argmax(logits, dim=-1)]
+    return [int(t) for t in torch.argmax(logits, dim=-1).tolist()]  # one conversion, not one per row
 
 
 def padded_cache(states: Sequence[toolkit.DecoderState]) -> tuple[list[tuple[torch.Tensor, torch.Tensor]], torch.Tensor]:
