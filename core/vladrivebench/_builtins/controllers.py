@@ -271,21 +271,10 @@ class MPCController:
     def _plan_accelerations(self, v0: float, s_ref: np.ndarray, v_ref: np.ndarray, dt: float) -> float:
         """First acceleration of the plan minimising position, speed, effort and jerk errors."""
         n, w = len(s_ref), self.weights
-        k = np.arange(n)
-        # v_{k+1} = v0 + dt Σ_{j≤k} a_j ;  s_{k+1} = v0 t_{k+1} + dt² Σ_{j≤k} (k − j + ½) a_j
-        lower = (k[:, None] >= k[None, :]).astype(float)
-        speed_rows = dt * lower
-        position_rows = dt * dt * np.where(lower > 0, k[:, None] - k[None, :] + 0.5, 0.0)
-        t = dt * (k + 1)
-        jerk_rows = np.eye(n) - np.eye(n, k=-1)
+        matrix = self._acceleration_matrix(n, dt)
+        t = dt * (np.arange(n) + 1)
         jerk_target = np.zeros(n)
         jerk_target[0] = self._last_accel
-        matrix = np.vstack([
-            math.sqrt(w.position) * position_rows,
-            math.sqrt(w.speed) * speed_rows,
-            math.sqrt(w.accel) * np.eye(n),
-            math.sqrt(w.jerk) * jerk_rows,
-        ])
         target = np.concatenate([
             math.sqrt(w.position) * (s_ref - v0 * t),
             math.sqrt(w.speed) * (v_ref - v0),
@@ -293,6 +282,28 @@ class MPCController:
             math.sqrt(w.jerk) * jerk_target,
         ])
         return float(bounded_least_squares(matrix, target, -self.max_decel, self.max_accel)[0])
+
+    def _acceleration_matrix(self, n: int, dt: float) -> np.ndarray:
+        """The weighted rows of the acceleration plan over ``n`` steps of ``dt`` (the same for every call with
+        these: built once)."""
+        key = (n, dt, self.weights)
+        if getattr(self, "_matrix_key", None) != key:
+            w = self.weights
+            k = np.arange(n)
+            # v_{k+1} = v0 + dt Σ_{j≤k} a_j ;  s_{k+1} = v0 t_{k+1} + dt² Σ_{j≤k} (k − j + ½) a_j
+            lower = (k[:, None] >= k[None, :]).astype(float)
+            speed_rows = dt * lower
+            position_rows = dt * dt * np.where(lower > 0, k[:, None] - k[None, :] + 0.5, 0.0)
+            jerk_rows = np.eye(n) - np.eye(n, k=-1)
+            matrix = np.vstack([
+                math.sqrt(w.position) * position_rows,
+                math.sqrt(w.speed) * speed_rows,
+                math.sqrt(w.accel) * np.eye(n),
+                math.sqrt(w.jerk) * jerk_rows,
+            ])
+            matrix.flags.writeable = False
+            self._matrix_key, self._matrix = key, matrix
+        return self._matrix
 
     def _plan_curvature(self, path: ReferencePath, s_ref: np.ndarray, travelled: float) -> float:
         """First curvature of the plan tracking the path's lateral position and heading."""

@@ -307,6 +307,15 @@ class _FaceList:
         front = all_front[solid_index]
         pu = np.take_along_axis(u[solid_index], corners, axis=1)
         pv = np.take_along_axis(v[solid_index], corners, axis=1)
+        if front.all():  # no face crosses the near plane (the usual frame): quadrilaterals only
+            nu, nv = pu[:, _NEXT_CORNER], pv[:, _NEXT_CORNER]
+            terms = pu * nv - nu * pv
+            area = ((terms[:, 0] + terms[:, 1]) + terms[:, 2]) + terms[:, 3]
+            centroid = np.stack([(((pu[:, 0] + pu[:, 1]) + pu[:, 2]) + pu[:, 3]) / 4,
+                                 (((pv[:, 0] + pv[:, 1]) + pv[:, 2]) + pv[:, 3]) / 4], axis=1)
+            box = _boxes(pu.min(axis=1), pu.max(axis=1), pv.min(axis=1), pv.max(axis=1), cam)
+            return cls(solid_index, face_index, pu, pv, nu - pu, nv - pv, box, area, centroid,
+                       np.full(len(pu), 4, dtype=np.int64), cam.width, cam.height)
         polygons: list[tuple[int, list[float], list[float]]] = []
         for m in np.flatnonzero(~front):  # faces crossing the near plane: clipped one by one (rare)
             polygon = _clip_near(camera[solid_index[m], _FACE_CORNERS[face_index[m]]], cam.near)
