@@ -106,8 +106,12 @@ def closed_loop(model_name: str, batch: int, steps: int, out: Path) -> tuple[flo
         lanes.append((simulator, controller))
 
     def writer(i: int):
+        started = time.perf_counter()
         log = EpisodeWriter(out / f"{model_name}-{batch}-{i}.mcap", {"episode_id": str(i)})
+        log.__enter__()
+        timer.seconds["logging"] += time.perf_counter() - started
         log.write_step = timer.wrap("logging", log.write_step)
+        log.finish = timer.wrap("logging", log.finish)  # the result record, fsync and rename
         return log
 
     results = []
@@ -119,12 +123,12 @@ def closed_loop(model_name: str, batch: int, steps: int, out: Path) -> tuple[flo
     with timer.patched(Camera, "render", "render"), timer.patched(TruthTracker, "observe", "truth"):
         started = time.perf_counter()
         if batch == 1:
-            with writer(0) as w:
-                result = run_episode(model, *lanes[0], road, 0, policy=timer.wrap("model", own_cot_policy), writer=w)
-                w.finish(result.to_json())
+            w = writer(0)
+            result = run_episode(model, *lanes[0], road, 0, policy=timer.wrap("model", own_cot_policy), writer=w)
+            w.finish(result.to_json())
             results.append(result)
         else:
-            episodes = [LockstepEpisode(i, road, i, (lambda i=i: writer(i).__enter__())) for i in range(batch)]
+            episodes = [LockstepEpisode(i, road, i, (lambda i=i: writer(i))) for i in range(batch)]
             run_lockstep(episodes, batch, make_lane=lambda i: (model, *lanes[i]), done=done,
                          batch_policy=timer.wrap("model", own_cot_batch_policy))
         wall = time.perf_counter() - started
