@@ -73,7 +73,6 @@ class Solid:
     front_only: bool = False
 
 
-
 @dataclass(frozen=True)
 class _SolidGroup:
     """Solids drawn together (one actor's or one prop's), as arrays, with their mean position: groups are
@@ -517,7 +516,8 @@ def _clip_near(polygon: np.ndarray, near: float) -> np.ndarray:
 def _fill_convex(image: np.ndarray, u: list[float], v: list[float], colour: np.ndarray,
                  at_least_one: bool = False) -> int:
     """Fill the convex polygon with vertices (u, v) in pixel coordinates: every pixel whose centre lies
-    inside is painted. Returns the number of pixels painted.
+    inside is painted. Returns the number of pixels painted. The renderer fills a frame's faces in one
+    pass (:class:`_FaceList`) that paints exactly what calling this face by face would (tested).
 
     Each edge bounds the polygon's span on every pixel row from the left or from the right, so the
     inside test is one interval per row instead of one half-plane test per pixel and edge.
