@@ -1,8 +1,8 @@
 """Lockstep batches (`vdb run --batch B`): closed-loop throughput, the harness's share broken down,
 the renderer alone, batched-vs-unbatched difference and the demo's wall time, all measured in one run.
 
-    python benchmarks/bench_batching.py [--steps 20] [--sizes 1,4,16,64] [--sweep-seconds 5] [--skip-sweep]
-                                        [--skip-demo]
+    python benchmarks/bench_batching.py [--steps 20] [--sizes 1,4,16,64] [--repeats 1] [--sweep-seconds 5]
+                                        [--skip-sweep] [--skip-demo]
 
 1. Closed-loop steps per second of ``kv`` and ``qa`` on the kinematic simulator (camera rendered, MPC
    controller, every step logged to MCAP) at B = 1 (today's per-episode path, ``run_episode``) and at
@@ -201,6 +201,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--steps", type=int, default=20, help="steps per episode in part 1")
     parser.add_argument("--sizes", default="1,4,16,64")
+    parser.add_argument("--repeats", type=int, default=1, help="runs of every size in part 1 (the median is shown)")
     parser.add_argument("--skip-sweep", action="store_true")
     parser.add_argument("--sweep-seconds", type=float, default=5.0, help="episode length limit in part 3")
     parser.add_argument("--skip-demo", action="store_true")
@@ -208,9 +209,13 @@ def main() -> None:
     sizes = [int(s) for s in args.sizes.split(",")]
     with tempfile.TemporaryDirectory() as tmp:
         for model in ("kv", "qa"):
+            runs = {batch: [] for batch in sizes}
+            for _ in range(args.repeats):  # sizes interleaved, so a change of the machine's load hits them all
+                for batch in sizes:
+                    runs[batch].append(closed_loop(model, batch, args.steps, Path(tmp)))
             base = model_base = None
             for batch in sizes:
-                rate, harness, parts = closed_loop(model, batch, args.steps, Path(tmp))
+                rate, harness, parts = sorted(runs[batch], key=lambda run: run[0])[len(runs[batch]) // 2]
                 model_rate = rate / (1.0 - harness)  # episode-steps per second of model time alone
                 base, model_base = base or rate, model_base or model_rate
                 breakdown = "  ".join(f"{k} {100 * v:4.1f}" for k, v in parts.items())
