@@ -315,3 +315,23 @@ def max_trajectory_difference(a: Path, b: Path) -> float:
             if sa.step == 0:
                 worst = max(worst, float(np.max(np.abs(np.asarray(sa.trajectory["xy"]) - np.asarray(sb.trajectory["xy"])))))
     return worst
+
+
+def test_the_command_line_batch_is_configuration_and_too_large_is_fine(capsys, tmp_path):
+    import json
+
+    from vladrivebench._scenarios.spec import resolve_scenarios as resolve
+
+    spec = {**resolve(["E.1"])[0].to_json(), "id": "E.1-short", "max_time_s": 1.0}
+    route = tmp_path / "short.json"
+    route.write_text(json.dumps(spec), encoding="utf-8")
+    args = ["intervene", "--model", "scripted", "--route", route, "--mode", "closed-loop", "--conditions",
+            "selfsplice", "--seeds", "1", "--checkpoints", "0.5", "--quiet"]
+    code, _, err = fakes.vdb(capsys, *args, "--batch", "1000", "--out", tmp_path / "huge")
+    assert code == 0, err
+    assert json.loads((tmp_path / "huge" / "run.json").read_text())["config"]["batch"] == 1000
+    code, _, err = fakes.vdb(capsys, *args, "--batch", "1", "--out", tmp_path / "one")
+    assert code == 0, err
+    assert "batch" not in json.loads((tmp_path / "one" / "run.json").read_text())["config"]
+    code, _, err = fakes.vdb(capsys, *args, "--batch", "2", "--out", tmp_path / "huge")  # another configuration
+    fakes.one_line_error(code, err, "different configuration")

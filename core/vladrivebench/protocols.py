@@ -323,7 +323,9 @@ class Paradigm(Protocol):
 
     ``default_conditions`` are the conditions run when ``--conditions`` is not given (``selfsplice`` is
     always run, as the gate). A paradigm may also offer ``pilot_effects(results, route)``
-    (:class:`~vladrivebench.intervention.PilotEffects`) so that ``vdb intervene --plan`` can size a study.
+    (:class:`~vladrivebench.intervention.PilotEffects`) so that ``vdb intervene --plan`` can size a study, and
+    ``step_batch`` / ``lockstep_group`` (:class:`BatchedParadigm`) so that ``vdb intervene --batch B`` runs its
+    episodes in lockstep; without them every episode runs on its own, whatever ``--batch`` says.
     """
 
     name: str
