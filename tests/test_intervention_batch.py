@@ -67,6 +67,70 @@ class UnbatchedOpenLoop:
         return self.inner.tables(results)
 
 
+class ProbePolicy:
+    """A third party's step policy: the own CoT drives; extras hold the gate and the own displacement."""
+
+    def __init__(self, splicer):
+        self.splicer = splicer
+
+    def __call__(self, model, obs, seed):
+        from vladrivebench.intervention import own_step
+
+        own, trajectory = own_step(model, obs, seed)
+        spliced = self.splicer.splice(obs, "selfsplice", self.splicer.injection(self.splicer.resolver(own),
+                                                                                "selfsplice"), seed)
+        return self.outcome(model, obs, seed, own, trajectory, spliced, self.splicer.decode(obs, spliced, seed))
+
+    def outcome(self, model, obs, seed, own, trajectory, spliced, spliced_trajectory):
+        from vladrivebench.intervention import gate_record
+
+        gate = gate_record(model, own, trajectory, spliced, spliced_trajectory, obs, seed)
+        return own, trajectory, {"intervention": {"role": "probe", "gate": gate,
+                                                  "ahead": trajectory.forward_displacement(2.0)}}
+
+
+class BatchedProbe:
+    """A third party's batched paradigm, written from CONTRIBUTING.md with the public API only."""
+
+    name, default_conditions = "probe", ("selfsplice",)
+
+    def check(self, config):
+        pass
+
+    def plan(self, config):
+        from vladrivebench.intervention import PlannedEpisode
+
+        return [PlannedEpisode(route, seed, "probe") for route in config.routes for seed in config.seeds]
+
+    def policy(self, episode, context):
+        return ProbePolicy(context.splicer)
+
+    def step_batch(self, model, lanes, context):
+        from vladrivebench.intervention import selfsplice_many
+
+        sp = context.splicer
+        observations, seeds = [lane.obs for lane in lanes], [lane.seed for lane in lanes]
+        owns, trajectories = sp.own_many(observations, seeds)
+        spliced, spliced_trajectories = selfsplice_many(sp, observations, owns, seeds)
+        return [lane.policy.outcome(model, lane.obs, lane.seed, *parts) for lane, parts in
+                zip(lanes, zip(owns, trajectories, spliced, spliced_trajectories, strict=True), strict=True)]
+
+    def lockstep_group(self, episode):
+        return None
+
+    def analyse(self, config, episodes, gate):
+        ahead = {}
+        for route in config["routes"]:
+            for seed in config["seeds"]:
+                episode = episodes.require(route, seed, "probe")
+                gate.add_episode(episode, route, seed, "probe")
+                ahead[f"{route}/{seed}"] = [s.extras["intervention"]["ahead"] for s in episode.steps]
+        return {"probe": ahead}
+
+    def tables(self, results):
+        return []
+
+
 class Plugin:
     @hookimpl
     def register_models(self, register):
@@ -75,6 +139,7 @@ class Plugin:
     @hookimpl
     def register_paradigms(self, register):
         register("plain-open-loop", UnbatchedOpenLoop)
+        register("probe", BatchedProbe)
 
 
 @pytest.fixture(scope="module")
@@ -163,7 +228,10 @@ def test_same_batch_same_bytes_and_an_interrupted_run_resumes_to_the_same_bytes(
         run(registry, cfg, tmp_path / "c", progress=stop_after_five)
     partial = {p.name for p in find_episodes(tmp_path / "c")}
     assert 0 < len(partial) < 16  # some episodes done, none half-written left behind as complete
+    stale = tmp_path / "c" / "episodes" / "keyword-batched__E.1__s3__car.mcap.999999.partial"
+    stale.write_bytes(b"left by a killed run")
     run(registry, cfg, tmp_path / "c")
+    assert not stale.exists()
     assert snapshot(tmp_path / "c") == snapshot(tmp_path / "a")
 
 
@@ -218,6 +286,16 @@ def test_a_harvested_condition_takes_its_text_from_the_batched_baseline(registry
     unbatched = run(registry, dataclasses.replace(config(registry, **kw), simulator=line), tmp_path / "one")
     batched = run(registry, dataclasses.replace(config(registry, batch=4, **kw), simulator=line), tmp_path / "b")
     assert batched["harvested"] and without_batch(batched) == without_batch(unbatched)
+    assert logged_steps(tmp_path / "b") == logged_steps(tmp_path / "one")
+
+
+def test_a_third_party_paradigm_batches_with_the_public_api(registry, tmp_path):
+    assert isinstance(BatchedProbe(), BatchedParadigm)
+    one = run(registry, config(registry, "probe", ("E.1", "P.1"), ("selfsplice",), seeds=3), tmp_path / "one")
+    batched = run(registry, config(registry, "probe", ("E.1", "P.1"), ("selfsplice",), seeds=3, batch=4),
+                  tmp_path / "b")
+    assert max(len(rows) for _, rows in BatchedKeywordModel.CALLS) == 4
+    assert without_batch(batched) == without_batch(one) and batched["valid"] and batched["gate"]["steps_checked"]
     assert logged_steps(tmp_path / "b") == logged_steps(tmp_path / "one")
 
 

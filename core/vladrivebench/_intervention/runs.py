@@ -664,7 +664,7 @@ class InterventionRun:
 
     def run(self) -> dict[str, Any]:
         """Check, harvest, run every missing episode, then analyse the logs into ``OUT/intervention.json``."""
-        from vladrivebench._engine.sweep import prepare_out
+        from vladrivebench._engine.sweep import EPISODES_DIR, _remove_stale_partials, prepare_out
 
         for spec in (self.config.model, self.config.simulator, self.config.controller):
             self.registry.get(spec.kind, spec.name)
@@ -674,6 +674,7 @@ class InterventionRun:
         self.splicer = Splicer(model, self.library, {}, self.model_name)
         self.preflight(harvested=False)
         prepare_out(self.out, manifest)
+        _remove_stale_partials(self.out / EPISODES_DIR)  # left by a killed run (a batch leaves several)
         self.versions = manifest["versions"]
         try:
             harvested = self.harvest() if self.harvest_names else {}
