@@ -1,7 +1,8 @@
 """Open-loop intervention cost: K conditions per step relative to one baseline step, end to end.
 
     python benchmarks/bench_intervention.py [--models scripted,kv,qa] [--steps 40] [--repeats 5] [--ks 0,1,2,4]
-                                            [--kv-weights DIR]
+                                            [--kv-weights DIR] [--part all|open-loop|lockstep]
+                                            [--batches 4,8,16] [--lockstep-seeds 4]
 
 For each model, a baseline episode (the model's own CoT drives; simulator + camera rendering + model +
 PID controller + MCAP logging) is timed per step, then open-loop episodes of the same steps with the
@@ -14,6 +15,12 @@ should only cost a splice and an action decode. Printed per model and splice pat
   at most 0.15 for a model that caches its vision prefix (``kv``: batched decoding over the shared prefix,
   ``--batch-conditions``);
 - the gate's own cost (K = 0 minus the baseline).
+
+Then (``--part lockstep``, or ``all``) ``vdb intervene --batch B`` on ``kv``: a closed-loop run (E.1, selfsplice,
+accel, pedestrian, car) and a safety run (SAFE.kerb-ped, accel), ``--lockstep-seeds`` seeds each, at B = 1 and
+each of ``--batches``; printed per run and B: wall and CPU seconds, the wall-time ratio against B = 1, whether
+the selfsplice gate held, and the largest trajectory difference batched vs unbatched — at step 0 (the same
+observation: floating point alone) and over every step (closed loop: with the drift it causes).
 
 ``kv`` needs weights: the plugin's own, ``--kv-weights DIR``, or (when neither exists) a small bundle
 trained for this benchmark in a temporary folder (~20 s; speed does not depend on training quality).
@@ -113,6 +120,74 @@ def bench_model(registry, label: str, name: str, options: dict, batch: bool, arg
             "gate": per_k.get(0, float("nan")) - base}
 
 
+LOCKSTEP_RUNS = (("closed-loop", "E.1", ("selfsplice", "accel", "pedestrian", "car")),
+                 ("safety", "SAFE.kerb-ped", ("selfsplice", "accel")))
+
+
+def lockstep_run(registry, mode: str, route, conditions, seeds: int, batch: int, options: dict, out: Path
+                 ) -> dict:
+    """One ``vdb intervene`` run at ``batch``: wall and CPU seconds and its results."""
+    from vladrivebench._engine.sweep import ComponentSpec
+    from vladrivebench._intervention.runs import InterventionConfig, InterventionRun
+
+    config = InterventionConfig(mode=mode, model=ComponentSpec("model", "kv", options),
+                                simulator=ComponentSpec("simulator", "kinematic", {}),
+                                controller=ComponentSpec("controller", "pid", {}), routes=(route,),
+                                conditions=conditions, seeds=tuple(range(seeds)), batch=batch)
+    wall, cpu = time.perf_counter(), time.process_time()
+    results = InterventionRun(config, out, registry=registry).run()
+    return {"wall": time.perf_counter() - wall, "cpu": time.process_time() - cpu, "valid": results["valid"],
+            "out": out}
+
+
+def trajectory_differences(a: Path, b: Path) -> tuple[float, float]:
+    """Largest waypoint difference (m) between two runs' logs of the same episodes: at step 0, and over the
+    steps both episodes have."""
+    import numpy as np
+    from vladrivebench._logs.episodes import find_episodes, read_episode
+
+    first = every = 0.0
+    for pa, pb in zip(find_episodes(a), find_episodes(b), strict=True):
+        for sa, sb in zip(read_episode(pa).steps, read_episode(pb).steps, strict=False):
+            diff = float(np.max(np.abs(np.asarray(sa.trajectory["xy"]) - np.asarray(sb.trajectory["xy"]))))
+            every = max(every, diff)
+            if sa.step == 0:
+                first = max(first, diff)
+    return first, every
+
+
+def bench_lockstep(registry, args, folder: Path) -> None:
+    from vladrivebench._scenarios.spec import resolve_scenarios
+
+    weights = kv_weights(args.kv_weights)
+    options = {"weights_dir": weights} if weights else {}
+    batches = [1] + [b for b in args.batches if b != 1]
+    warm_up = build(registry, "model", "kv", options), build(registry, "simulator", "kinematic", {})
+    warm_up[1].reset(resolve_scenarios("E.1", registry)[0], 0)  # imports and first-use costs out of the timings
+    print(f"\nvdb intervene --batch B on kv: {args.lockstep_seeds} seeds, {args.steps} steps per episode at most, "
+          "kinematic simulator with rendering, PID, MCAP logging; wall time of the whole run (shared machine: see the "
+          "load average)")
+    header = ["run", "B", "episodes", "wall s", "cpu s", "wall ratio vs B=1", "gate", "max Δ step 0 (m)",
+              "max Δ any step (m)"]
+    lines = [header]
+    for mode, route_id, conditions in LOCKSTEP_RUNS:
+        route = dataclasses.replace(resolve_scenarios(route_id, registry)[0], max_time_s=args.steps / 10.0)
+        episodes = args.lockstep_seeds * (1 + len(conditions))
+        runs = {b: lockstep_run(registry, mode, route, conditions, args.lockstep_seeds, b, options,
+                                folder / f"{mode}-b{b}") for b in batches}
+        for b, r in runs.items():
+            first, every = trajectory_differences(r["out"], runs[1]["out"])
+            lines.append([f"{mode} {route_id}", str(b), str(episodes), f"{r['wall']:.1f}", f"{r['cpu']:.1f}",
+                          f"{runs[1]['wall'] / r['wall']:.2f}×", "holds" if r["valid"] else "FAILED",
+                          f"{first:.2g}", f"{every:.2g}"])
+    widths = [max(len(line[i]) for line in lines) for i in range(len(header))]
+    for line in lines:
+        print("  ".join(cell.ljust(w) for cell, w in zip(line, widths, strict=True)))
+    import os
+
+    print(f"load average (1, 5, 15 min) at the end: {', '.join(f'{x:.2f}' for x in os.getloadavg())}")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--models", default="scripted,kv,qa")
@@ -120,8 +195,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--ks", default="0,1,2,4")
     parser.add_argument("--kv-weights")
+    parser.add_argument("--part", choices=("all", "open-loop", "lockstep"), default="all")
+    parser.add_argument("--batches", default="4,8,16", help="lockstep batch sizes compared with B = 1")
+    parser.add_argument("--lockstep-seeds", type=int, default=4)
     args = parser.parse_args(argv)
     args.ks = [int(k) for k in args.ks.split(",")]
+    args.batches = [int(b) for b in args.batches.split(",")]
     if max(args.ks) > len(CONDITION_POOL):
         parser.error(f"--ks: at most {len(CONDITION_POOL)} conditions")
 
@@ -148,10 +227,16 @@ def main(argv: list[str] | None = None) -> int:
             variants.append(("scripted (alpha=1, no vision encoder)", name, {"alpha": 1.0}, False))
         else:
             variants.append((name, name, {}, False))
+    if args.part == "lockstep":
+        variants = []
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for label, name, options, batch in variants:
             rows.append(bench_model(registry, label, name, options, batch, args, route, Path(tmp)))
+        if args.part != "open-loop" and "kv" in registry.names("model"):
+            bench_lockstep(registry, args, Path(tmp))
+    if not rows:
+        return 0
     print(f"Open-loop intervention cost on E.1, {args.steps} steps, kinematic simulator with rendering, PID, "
           f"MCAP logging; CPU ms per step, min of {args.repeats} runs")
     header = ["model / splice path", "baseline ms/step"] + [f"K={k}" for k in args.ks] + \

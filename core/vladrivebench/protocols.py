@@ -323,7 +323,9 @@ class Paradigm(Protocol):
 
     ``default_conditions`` are the conditions run when ``--conditions`` is not given (``selfsplice`` is
     always run, as the gate). A paradigm may also offer ``pilot_effects(results, route)``
-    (:class:`~vladrivebench.intervention.PilotEffects`) so that ``vdb intervene --plan`` can size a study.
+    (:class:`~vladrivebench.intervention.PilotEffects`) so that ``vdb intervene --plan`` can size a study, and
+    ``step_batch`` / ``lockstep_group`` (:class:`BatchedParadigm`) so that ``vdb intervene --batch B`` runs its
+    episodes in lockstep; without them every episode runs on its own, whatever ``--batch`` says.
     """
 
     name: str
@@ -351,6 +353,38 @@ class Paradigm(Protocol):
 
     def tables(self, results: Mapping[str, Any]) -> list[Any]:
         """Tables and plots for ``results`` (the run's whole results, with what :meth:`analyse` returned)."""
+        ...
+
+
+@runtime_checkable
+class BatchedParadigm(Protocol):
+    """A paradigm whose planned episodes can advance in lockstep (``vdb intervene --batch B``).
+
+    Without this capability (or with ``--batch 1``, or a model that is not a :class:`BatchedModel` with
+    ``splice_cot_batch``) every planned episode runs on its own under its :meth:`Paradigm.policy`, exactly
+    as before: a third-party paradigm keeps working unchanged and opts in by adding the two methods below.
+
+    With it, the core runs the planned episodes B at a time through one model instance (episodes that end
+    leave the batch, the next ones join; the policies of :meth:`Paradigm.policy` are still made, still wrap
+    the controller, and serve a lane that has to run alone) and, at every step, calls :meth:`step_batch`
+    once for all the episodes in the batch. Each episode keeps its own pinned RNG streams: a batched step
+    must give episode i exactly the draws ``policy(model, obs_i, seed_i)`` would have (the
+    :class:`~vladrivebench.intervention.Splicer`'s ``*_many`` methods do), and what it returns for episode i
+    is logged as that policy's output would be. Results may differ from the unbatched run in floating point
+    only; the selfsplice gate must still hold bit for bit within a batch (splice the model's own CoTs of
+    *all* the batch's observations in one ``splice_many`` call, mirroring the generation — see
+    :func:`~vladrivebench.intervention.selfsplice_many`).
+    """
+
+    def step_batch(self, model: Any, lanes: Sequence[Any], context: Any) -> list[Any]:
+        """``[(cot, trajectory, extras), …]`` for ``lanes`` (each a
+        :class:`~vladrivebench.intervention.LaneStep`: planned episode, its policy, observation, seed) at one
+        step; ``context`` is the run's :class:`~vladrivebench.intervention.RunContext`."""
+        ...
+
+    def lockstep_group(self, episode: Any) -> Any:
+        """A hashable key for episodes that must see the same batches at every step (planned consecutively
+        and compared bit for bit, e.g. the selfsplice episode and its baseline), or ``None``."""
         ...
 
 

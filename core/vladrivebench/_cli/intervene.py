@@ -87,7 +87,7 @@ def episode_progress(what: str) -> Callable[[str, int, int], None]:
 def build_config(opts: dict[str, Any], registry: Any) -> Any:
     """The :class:`InterventionConfig` of the command-line options (every mistake one line)."""
     from vladrivebench._engine.options import parse_options
-    from vladrivebench._engine.sweep import ComponentSpec, seed_list
+    from vladrivebench._engine.sweep import ComponentSpec, batch_size, seed_list
     from vladrivebench._intervention.runs import InterventionConfig, build_paradigm
     from vladrivebench._scenarios.spec import resolve_scenarios
 
@@ -123,6 +123,7 @@ def build_config(opts: dict[str, Any], registry: Any) -> Any:
         threshold=opts["threshold"], alpha=opts["alpha"], harvest_route=harvest,
         condition_files=tuple(str(Path(f)) for f in opts["condition_file"]),
         batch_conditions=opts["batch_conditions"],
+        batch=batch_size(1 if opts["batch"] is None else opts["batch"]),
     )
 
 
@@ -177,6 +178,8 @@ def _num(value: Any) -> str:
               "(default: the first --route).")
 @click.option("--batch-conditions", is_flag=True,
               help="Decode a step's open-loop conditions in one batch when the model has decode_batch.")
+@click.option("--batch", help="Planned episodes advancing in lockstep through one model (default 1; part of the "
+              "configuration: results may differ from unbatched in floating point).")
 @click.option("--plan", is_flag=True, help="Print how many seeds each condition needs (from OUT's results, or "
               "after running this pilot).")
 @click.option("--effect", type=float, help="--plan: the effect to detect, in metres (default: the pilot's).")

@@ -307,14 +307,22 @@ def own_cot_batch_policy(model: Any, observations: Sequence[Observation], seeds:
 
 @dataclass
 class LockstepEpisode:
-    """One episode of a lockstep batch: what to run, where to log it (``writer``: an entered
-    :class:`~vladrivebench._logs.episodes.EpisodeWriter`-like object, or ``None`` for an episode run only
-    to keep its batch-mates' company), and ``key`` to tell the caller which one finished."""
+    """One episode of a lockstep batch: what to run, where to log it (``open_writer`` gives an entered
+    :class:`~vladrivebench._logs.episodes.EpisodeWriter`-like object; ``None`` for an episode run only
+    to keep its batch-mates' company), and ``key`` to tell the caller which one finished.
+
+    ``policy`` is the episode's own step policy, used when its lane is served one by one (default:
+    :func:`own_cot_policy`); ``wrap_controller(controller)`` gives the controller the episode drives with,
+    built around its lane's; episodes with the same non-``None`` ``group`` (consecutive in the list) join
+    the batch together, so they see the same batches at every step."""
 
     key: Any
     scenario: Any
     seed: int
     open_writer: Callable[[], Any] | None = None
+    policy: StepPolicy | None = None
+    wrap_controller: Callable[[Any], Any] | None = None
+    group: Any = None
 
 
 @dataclass
@@ -332,6 +340,10 @@ class _Lane:
 LockstepDone = Callable[[LockstepEpisode, "EpisodeResult | EpisodeFailure", Any], None]
 """``done(episode, result_or_failure, writer)``: called once per episode as it leaves the batch."""
 
+EpisodeBatchPolicy = Callable[[Any, Sequence[LockstepEpisode], Sequence[Observation]], list[StepOutput]]
+"""``policy(model, episodes, observations) -> [(cot, trajectory, extras), …]``: a batched step that sees which
+episode each observation belongs to (episodes with different step policies in one batch)."""
+
 
 def run_lockstep(
     episodes: Sequence[LockstepEpisode],
@@ -341,6 +353,7 @@ def run_lockstep(
     done: LockstepDone,
     names: Mapping[str, str] | None = None,
     batch_policy: BatchStepPolicy | None = None,
+    episode_batch_policy: EpisodeBatchPolicy | None = None,
 ) -> None:
     """Run ``episodes`` with up to ``batch`` of them advancing step by step together.
 
@@ -351,8 +364,16 @@ def run_lockstep(
     next one joins before the next step. The order of everything depends only on the episodes, so the same
     episodes and batch size give the same calls, and each episode's log the same bytes. ``done`` receives
     each episode's result or :class:`EpisodeFailure` (with its writer, still open, to finish or abandon).
+    ``episode_batch_policy`` (instead of ``batch_policy``) is a batched step that also receives the
+    lanes' episodes. A ``group`` of episodes joins only when it fits in the free lanes, the earlier
+    episodes waiting with it; a group larger than ``batch`` is a :class:`VdbError`.
     """
     names = {"model": "model", "simulator": "simulator", "controller": "controller", **(names or {})}
+    _check_groups(episodes, batch)
+    if episode_batch_policy is not None:
+        def batch_policy(model: Any, observations: Sequence[Observation], seeds: Sequence[int]) -> list[StepOutput]:
+            return episode_batch_policy(model, [lane.episode for lane in active_lanes], observations)
+    active_lanes: list[_Lane] = []
     queue = list(episodes)
     queue.reverse()
     lanes: list[_Lane | None] = [None] * max(1, batch)
@@ -362,6 +383,7 @@ def run_lockstep(
         active = [(i, lane) for i, lane in enumerate(lanes) if lane is not None]
         if not active:
             return
+        active_lanes[:] = [lane for _, lane in active]
         outputs = _lockstep_outputs([lane for _, lane in active], names, batch_policy)
         for (i, lane), output in zip(active, outputs, strict=True):
             finished = _advance_lane(lane, output, names)
@@ -372,22 +394,55 @@ def run_lockstep(
                 done(lane.episode, finished, lane.writer)
 
 
+def _check_groups(episodes: Sequence[LockstepEpisode], batch: int) -> None:
+    sizes: dict[Any, int] = {}
+    for episode in episodes:
+        if episode.group is not None:
+            sizes[episode.group] = sizes.get(episode.group, 0) + 1
+    too_big = [(group, size) for group, size in sizes.items() if size > max(1, batch)]
+    if too_big:
+        group, size = too_big[0]
+        raise VdbError(f"a lockstep group of {size} episodes ({group}) must advance together, more than the "
+                       f"batch of {batch}; expected --batch {size} or more")
+
+
+def _next_group(queue: list[LockstepEpisode]) -> int:
+    """How many episodes at the head of ``queue`` (its end) must join together."""
+    group = queue[-1].group
+    if group is None:
+        return 1
+    count = 1
+    while count < len(queue) and queue[-1 - count].group == group:
+        count += 1
+    return count
+
+
 def _fill_lanes(lanes: list[_Lane | None], queue: list[LockstepEpisode], components: dict[int, tuple],
                 make_lane: Callable[[int], tuple[Any, Any, Any]], names: Mapping[str, str],
                 done: LockstepDone) -> None:
-    for i in range(len(lanes)):
-        while lanes[i] is None and queue:
-            episode = queue.pop()
-            if i not in components:
-                components[i] = make_lane(i)
-            model, simulator, controller = components[i]
-            writer = None
-            try:
-                writer = episode.open_writer() if episode.open_writer else None
-                lanes[i] = _start_lane(episode, writer, model, simulator, controller, names)
-            except EpisodeFailure as failure:
-                components.pop(i, None)
-                done(episode, failure, writer)
+    while queue:
+        free = [i for i, lane in enumerate(lanes) if lane is None]
+        size = _next_group(queue)
+        if len(free) < size:
+            return
+        for i in free[:size]:
+            _join(i, queue.pop(), lanes, components, make_lane, names, done)
+
+
+def _join(i: int, episode: LockstepEpisode, lanes: list[_Lane | None], components: dict[int, tuple],
+          make_lane: Callable[[int], tuple[Any, Any, Any]], names: Mapping[str, str], done: LockstepDone) -> None:
+    if i not in components:
+        components[i] = make_lane(i)
+    model, simulator, controller = components[i]
+    writer = None
+    try:
+        writer = episode.open_writer() if episode.open_writer else None
+        if episode.wrap_controller is not None:
+            controller = episode.wrap_controller(controller)
+        lanes[i] = _start_lane(episode, writer, model, simulator, controller, names)
+    except EpisodeFailure as failure:
+        components.pop(i, None)
+        done(episode, failure, writer)
 
 
 def _start_lane(episode: LockstepEpisode, writer: Any, model: Any, simulator: Any, controller: Any,
@@ -423,7 +478,7 @@ def _lockstep_outputs(lanes: Sequence[_Lane], names: Mapping[str, str], batch_po
     for lane in lanes:
         try:
             with _blame(names, "model", "step policy", _where(lane), lane.obs.step):
-                outputs.append(own_cot_policy(lane.model, lane.obs, lane.episode.seed))
+                outputs.append((lane.episode.policy or own_cot_policy)(lane.model, lane.obs, lane.episode.seed))
         except EpisodeFailure as failure:
             outputs.append(failure)
     return outputs

@@ -87,6 +87,10 @@ class InterventionConfig:
     harvested conditions (``origbrake``) take their braking CoT from (default: the first route).
     ``batch_conditions`` lets a model with ``decode_batch(obs, texts, rng)`` decode the open-loop
     conditions of a step in one batch (the gate still goes through ``splice_cot`` one by one).
+    ``batch`` is the lockstep batch size (``--batch``): up to that many planned episodes advance together
+    through one model instance when the paradigm is a :class:`~vladrivebench.BatchedParadigm` and the model a
+    :class:`~vladrivebench.BatchedModel` with ``splice_cot_batch`` (else the episodes run one by one). It is
+    configuration (results may differ in floating point), recorded in the manifest when not 1.
     """
 
     mode: str
@@ -105,6 +109,7 @@ class InterventionConfig:
     condition_files: tuple[str, ...] = ()
     batch_conditions: bool = False
     paradigm_options: Mapping[str, Any] = field(default_factory=dict)
+    batch: int = 1
 
     def __post_init__(self) -> None:
         if not isinstance(self.mode, str) or not self.mode.strip():
@@ -120,6 +125,8 @@ class InterventionConfig:
             raise ConfigError(f"--alpha and the confidence must be in (0, 1), got {self.alpha}, {self.confidence}")
         if not (math.isfinite(self.threshold) and self.threshold >= 0):
             raise ConfigError(f"--threshold must be a distance ≥ 0 m, got {self.threshold}")
+        if isinstance(self.batch, bool) or not isinstance(self.batch, int) or self.batch < 1:
+            raise ConfigError(f"--batch must be a whole number ≥ 1 (episodes in lockstep), got {self.batch!r}")
 
     @property
     def tested(self) -> tuple[str, ...]:
@@ -149,6 +156,7 @@ class InterventionConfig:
             "harvest_route": self.harvest_scenario.id,
             "condition_files": list(self.condition_files),
             "batch_conditions": self.batch_conditions,
+            **({"batch": self.batch} if self.batch != 1 else {}),  # absent at 1: unbatched runs keep their bytes
         }
 
 
@@ -227,6 +235,71 @@ class Splicer:
         """``model.decode_action`` with the step's pinned action stream (the baseline's action noise)."""
         return self.model.decode_action(obs, cot, step_rng(seed, obs.step, "action", obs.scenario_id))
 
+    # -- several episodes' observations at once (lockstep batches) --
+    def own_many(self, observations: Sequence[Observation], seeds: Sequence[int]
+                 ) -> tuple[list[CoT], list[Trajectory]]:
+        """:func:`own_step` for every ``(observations[i], seeds[i])``: one ``generate_cot_batch`` and one
+        ``decode_action_batch`` call on a :class:`~vladrivebench.BatchedModel` (else one by one)."""
+        model = self.model
+        if not _batched(model, "generate_cot_batch"):
+            pairs = [own_step(model, obs, seed) for obs, seed in zip(observations, seeds, strict=True)]
+            return [c for c, _ in pairs], [t for _, t in pairs]
+        rngs = [step_rng(seed, obs.step, "cot", obs.scenario_id) for obs, seed in zip(observations, seeds, strict=True)]
+        owns = _same_length(model.generate_cot_batch(list(observations), rngs), observations, "generate_cot_batch")
+        return owns, self.decode_many(observations, owns, seeds)
+
+    def splice_many(self, observations: Sequence[Observation], names: Sequence[str],
+                    injections: Sequence[Injection], seeds: Sequence[int]) -> list[CoT]:
+        """:meth:`splice` for every row (``names[i]`` in messages) in one ``splice_cot_batch`` call when the
+        model has it, with row i's pinned condition stream. A refusal is the one-line error of the row
+        that caused it (found by splicing the rows one by one)."""
+        if not _batched(self.model, "splice_cot_batch"):
+            return [self.splice(o, n, t, s) for o, n, t, s in zip(observations, names, injections, seeds, strict=True)]
+        rngs = [step_rng(s, o.step, "condition", o.scenario_id) for o, s in zip(observations, seeds, strict=True)]
+        try:
+            cots = self.model.splice_cot_batch(list(observations), list(injections), rngs)
+        except (VdbError, ValueError, KeyError, TypeError) as exc:
+            for o, n, t, s in zip(observations, names, injections, seeds, strict=True):
+                self.splice(o, n, t, s)  # raises the offending row's ConditionError
+            raise ConditionError(f"conditions {', '.join(dict.fromkeys(names))}: model {self.model_name!r} cannot "
+                                 f"take their texts in one batch: {_one_line(exc)}") from None
+        return _same_length(cots, observations, "splice_cot_batch")
+
+    def decode_many(self, observations: Sequence[Observation], cots: Sequence[CoT], seeds: Sequence[int]
+                    ) -> list[Trajectory]:
+        """:meth:`decode` for every row in one ``decode_action_batch`` call (row i: its pinned action stream)."""
+        if not _batched(self.model, "decode_action_batch"):
+            return [self.decode(o, c, s) for o, c, s in zip(observations, cots, seeds, strict=True)]
+        rngs = [step_rng(s, o.step, "action", o.scenario_id) for o, s in zip(observations, seeds, strict=True)]
+        trajectories = self.model.decode_action_batch(list(observations), list(cots), rngs)
+        return _same_length(trajectories, observations, "decode_action_batch")
+
+
+def _batched(model: Any, method: str) -> bool:
+    return callable(getattr(model, method, None))
+
+
+def _same_length(results: Any, observations: Sequence[Observation], method: str) -> list[Any]:
+    results = list(results)
+    if len(results) != len(observations):
+        from vladrivebench.errors import ModelOutputError
+
+        raise ModelOutputError(f"{method} returned {len(results)} results for {len(observations)} observations")
+    return results
+
+
+def selfsplice_many(splicer: Splicer, observations: Sequence[Observation], owns: Sequence[CoT],
+                    seeds: Sequence[int]) -> tuple[list[CoT], list[Trajectory]]:
+    """Every row's own CoT spliced back (``selfsplice``) and decoded, in calls that mirror the generation.
+
+    The splice and decode calls have the same rows and texts as the ``generate_cot_batch`` and
+    ``decode_action_batch`` calls that made ``owns``, so a model whose batched splice feeds texts as its
+    generation does gives bit-identical states and trajectories: the selfsplice gate within a batch.
+    """
+    injections = [splicer.injection(splicer.resolver(own), SELFSPLICE) for own in owns]
+    spliced = splicer.splice_many(observations, [SELFSPLICE] * len(owns), injections, seeds)
+    return spliced, splicer.decode_many(observations, spliced, seeds)
+
 
 @dataclass(frozen=True)
 class RunContext:
@@ -236,6 +309,18 @@ class RunContext:
 
     config: InterventionConfig
     splicer: Splicer
+
+
+@dataclass(frozen=True)
+class LaneStep:
+    """One episode of a lockstep batch at one step, as :meth:`~vladrivebench.BatchedParadigm.step_batch`
+    receives it: the :class:`PlannedEpisode`, the step policy the paradigm gave it, the observation and
+    the episode's seed."""
+
+    episode: Any
+    policy: Any
+    obs: Observation
+    seed: int
 
 
 @dataclass(frozen=True)
@@ -332,7 +417,10 @@ class BaselinePolicy:
     """The model's own CoT drives; extras mark the episode as a baseline."""
 
     def __call__(self, model: Any, obs: Observation, seed: int) -> tuple[CoT, Trajectory, dict]:
-        own, trajectory = own_step(model, obs, seed)
+        return self.outcome(*own_step(model, obs, seed))
+
+    def outcome(self, own: CoT, trajectory: Trajectory) -> tuple[CoT, Trajectory, dict]:
+        """The step's output from the own CoT and its trajectory."""
         return own, trajectory, {"intervention": {"role": "baseline"}}
 
 
@@ -355,9 +443,17 @@ class OpenLoopPolicy:
         resolver = sp.resolver(own)
         selfsplice = sp.splice(obs, SELFSPLICE, sp.injection(resolver, SELFSPLICE), seed)
         selfsplice_trajectory = sp.decode(obs, selfsplice, seed)
+        return self.outcome(model, obs, seed, own, trajectory, selfsplice, selfsplice_trajectory,
+                            self._conditions(obs, resolver, seed))
+
+    def outcome(self, model: Any, obs: Observation, seed: int, own: CoT, trajectory: Trajectory,
+                selfsplice: CoT, selfsplice_trajectory: Trajectory, conditions: Mapping[str, Trajectory]
+                ) -> tuple[CoT, Trajectory, dict]:
+        """The step's output from its parts: the own CoT drives; extras hold the gate and the displacements
+        of the baseline, selfsplice and every condition's trajectory."""
         gate = gate_record(model, own, trajectory, selfsplice, selfsplice_trajectory, obs, seed)
         trajectories = {"baseline": trajectory, SELFSPLICE: selfsplice_trajectory}
-        trajectories.update(self._conditions(obs, resolver, seed))
+        trajectories.update(self.checked(obs, conditions))
         by_horizon = {horizon_key(h): {name: t.forward_displacement(h) for name, t in trajectories.items()}
                       for h in self.horizons}
         extras = {"intervention": {"role": "openloop", "gate": gate, "displacement": by_horizon}}
@@ -368,15 +464,49 @@ class OpenLoopPolicy:
         injections = {name: sp.injection(resolver, name) for name in self.conditions}
         if self.batch and injections and all(isinstance(t, str) for t in injections.values()):
             decoded = sp.model.decode_batch(obs, list(injections.values()), step_rng(seed, obs.step, "action", obs.scenario_id))
-            out = dict(zip(injections, decoded, strict=True))
-        else:
-            out = {name: sp.decode(obs, sp.splice(obs, name, text, seed), seed) for name, text in injections.items()}
-        for name, traj in out.items():
+            return dict(zip(injections, decoded, strict=True))
+        return {name: sp.decode(obs, sp.splice(obs, name, text, seed), seed) for name, text in injections.items()}
+
+    def checked(self, obs: Observation, trajectories: Mapping[str, Any]) -> dict[str, Trajectory]:
+        """``trajectories`` (condition → trajectory), or a one-line error for the first unusable one."""
+        for name, traj in trajectories.items():
             problem = traj.problems() if isinstance(traj, Trajectory) else f"not a Trajectory ({type(traj).__name__})"
             if problem:
-                raise ConfigError(f"model {sp.model_name!r} at step {obs.step}: unusable trajectory under condition "
-                                  f"{name!r}: {problem}")
-        return out
+                raise ConfigError(f"model {self.splicer.model_name!r} at step {obs.step}: unusable trajectory under "
+                                  f"condition {name!r}: {problem}")
+        return dict(trajectories)
+
+
+def open_loop_step_batch(model: Any, lanes: Sequence[LaneStep], context: RunContext) -> list[tuple[CoT, Trajectory, dict]]:
+    """One lockstep step of :class:`OpenLoopPolicy` episodes (``lanes``, one per episode).
+
+    The own CoTs of every lane in one batched generation and one decode; the selfsplice gate in calls
+    mirroring them (:func:`selfsplice_many`); then each condition in one splice and one decode call for the
+    lanes that test it (or, with ``--batch-conditions``, each lane's conditions in one ``decode_batch``).
+    """
+    sp = context.splicer
+    observations, seeds = [lane.obs for lane in lanes], [lane.seed for lane in lanes]
+    owns, trajectories = sp.own_many(observations, seeds)
+    mirrored, mirrored_trajectories = selfsplice_many(sp, observations, owns, seeds)
+    resolvers = [sp.resolver(own) for own in owns]
+    conditions: list[dict[str, Trajectory]] = [{} for _ in lanes]
+    names = list(dict.fromkeys(c for lane in lanes for c in lane.policy.conditions))
+    for name in names:
+        rows = [i for i, lane in enumerate(lanes) if name in lane.policy.conditions and not lane.policy.batch]
+        if not rows:
+            continue
+        injections = [sp.injection(resolvers[i], name) for i in rows]
+        cots = sp.splice_many([observations[i] for i in rows], [name] * len(rows), injections, [seeds[i] for i in rows])
+        for i, traj in zip(rows, sp.decode_many([observations[i] for i in rows], cots, [seeds[i] for i in rows]),
+                           strict=True):
+            conditions[i][name] = traj
+    outputs = []
+    for i, lane in enumerate(lanes):
+        if lane.policy.batch:
+            conditions[i] = lane.policy._conditions(lane.obs, resolvers[i], lane.seed)
+        outputs.append(lane.policy.outcome(model, lane.obs, lane.seed, owns[i], trajectories[i], mirrored[i],
+                                           mirrored_trajectories[i], conditions[i]))
+    return outputs
 
 
 class ShadowController:
@@ -420,6 +550,12 @@ class InjectionPolicy:
         resolver = sp.resolver(own)
         injected = sp.splice(obs, self.condition, sp.injection(resolver, self.condition), seed)
         trajectory = sp.decode(obs, injected, seed)
+        return self.outcome(model, obs, seed, own, own_trajectory, injected, trajectory)
+
+    def outcome(self, model: Any, obs: Observation, seed: int, own: CoT, own_trajectory: Trajectory,
+                injected: CoT, trajectory: Trajectory) -> tuple[CoT, Trajectory, dict]:
+        """The step's output from its parts: the injected CoT drives, the own CoT is the shadow (and, for
+        ``selfsplice``, the gate's reference); hands the shadow to the :class:`ShadowController`."""
         shadow: dict[str, Any] = {"text": own.text, "slots": dict(own.slots),
                                   "displacement": displacements(own_trajectory, self.horizons)}
         record: dict[str, Any] = {"role": "injected", "condition": self.condition, "shadow": shadow,
@@ -434,6 +570,42 @@ class InjectionPolicy:
         """Drive with a :class:`ShadowController` around ``controller`` (fills the shadow's brake, v_des)."""
         self.controller = ShadowController(controller)
         return self.controller
+
+
+def injection_step_batch(model: Any, lanes: Sequence[LaneStep], context: RunContext
+                         ) -> list[tuple[CoT, Trajectory, dict]]:
+    """One lockstep step of :class:`BaselinePolicy` and :class:`InjectionPolicy` episodes (closed loop).
+
+    Every lane's own CoT in one batched generation and one decode (the baseline drives with it, an
+    injected episode logs it as the shadow); the ``selfsplice`` lanes' CoTs from calls mirroring those
+    (:func:`selfsplice_many`, so the gate holds bit for bit); every other injected lane's condition in one
+    ``splice_many`` and one ``decode_many`` call.
+    """
+    sp = context.splicer
+    observations, seeds = [lane.obs for lane in lanes], [lane.seed for lane in lanes]
+    owns, own_trajectories = sp.own_many(observations, seeds)
+    injected: dict[int, tuple[CoT, Trajectory]] = {}
+    rows = [i for i, lane in enumerate(lanes) if isinstance(lane.policy, InjectionPolicy)]
+    if any(lanes[i].policy.condition == SELFSPLICE for i in rows):
+        mirrored, mirrored_trajectories = selfsplice_many(sp, observations, owns, seeds)
+        injected.update({i: (mirrored[i], mirrored_trajectories[i]) for i in rows
+                         if lanes[i].policy.condition == SELFSPLICE})
+    others = [i for i in rows if i not in injected]
+    if others:
+        names = [lanes[i].policy.condition for i in others]
+        texts = [sp.injection(sp.resolver(owns[i]), name) for i, name in zip(others, names, strict=True)]
+        obs_rows, seed_rows = [observations[i] for i in others], [seeds[i] for i in others]
+        cots = sp.splice_many(obs_rows, names, texts, seed_rows)
+        injected.update(zip(others, zip(cots, sp.decode_many(obs_rows, cots, seed_rows), strict=True), strict=True))
+    outputs = []
+    for i, lane in enumerate(lanes):
+        if i in injected:
+            outputs.append(lane.policy.outcome(model, lane.obs, lane.seed, owns[i], own_trajectories[i], *injected[i]))
+        elif isinstance(lane.policy, BaselinePolicy):
+            outputs.append(lane.policy.outcome(owns[i], own_trajectories[i]))
+        else:  # a policy of the paradigm's own: served alone
+            outputs.append(lane.policy(model, lane.obs, lane.seed))
+    return outputs
 
 
 # -- the run ------------------------------------------------------------------------------------------
@@ -467,7 +639,8 @@ class InterventionRun:
         return self._components[kind]
 
     def close(self) -> None:
-        for obj in self._components.values():
+        objects = [o for value in self._components.values() for o in (value if isinstance(value, tuple) else (value,))]
+        for obj in objects:
             close = getattr(obj, "close", None)
             if callable(close):
                 try:
@@ -491,7 +664,7 @@ class InterventionRun:
 
     def run(self) -> dict[str, Any]:
         """Check, harvest, run every missing episode, then analyse the logs into ``OUT/intervention.json``."""
-        from vladrivebench._engine.sweep import prepare_out
+        from vladrivebench._engine.sweep import EPISODES_DIR, _remove_stale_partials, prepare_out
 
         for spec in (self.config.model, self.config.simulator, self.config.controller):
             self.registry.get(spec.kind, spec.name)
@@ -501,6 +674,7 @@ class InterventionRun:
         self.splicer = Splicer(model, self.library, {}, self.model_name)
         self.preflight(harvested=False)
         prepare_out(self.out, manifest)
+        _remove_stale_partials(self.out / EPISODES_DIR)  # left by a killed run (a batch leaves several)
         self.versions = manifest["versions"]
         try:
             harvested = self.harvest() if self.harvest_names else {}
@@ -536,11 +710,20 @@ class InterventionRun:
         return self.out / EPISODES_DIR / f"{eid}.mcap"
 
     def harvest(self) -> dict[str, HarvestedText]:
-        """Take each harvest condition's text from the baseline episode of the harvest route's first seed."""
+        """Take each harvest condition's text from the baseline episode of the harvest route's first seed.
+
+        In a lockstep run whose plan holds that baseline, its lockstep group is the run's first batch, so
+        the baseline is logged exactly as the rest of the run computes it."""
         from vladrivebench._logs.episodes import read_episode
 
         route, seed = self.config.harvest_scenario, self.config.seeds[0]
-        path = self.ensure_episode(PlannedEpisode(route, seed, "baseline"), BaselinePolicy())
+        baseline = PlannedEpisode(route, seed, "baseline")
+        chunks = self.lockstep_chunks() if self.lockstep() else []
+        if chunks and baseline.key in {e.key for e in chunks[0]}:
+            self.run_chunk(chunks[0], RunContext(self.config, self.splicer))
+            path = self.episode_path(baseline)
+        else:
+            path = self.ensure_episode(baseline, BaselinePolicy())
         episode = read_episode(path)
         found = harvest_braking_cot(((s.step, s.cot, s.control) for s in episode.steps),
                                     self.component("model").cot_format, path.stem)
@@ -551,23 +734,167 @@ class InterventionRun:
                 f"--harvest-route with a route where it brakes (e.g. P.1 or C.1)")
         return {name: found for name in self.harvest_names}
 
-    def run_episodes(self) -> None:
-        """Every episode the paradigm plans, under the policy it gives, skipping complete logs."""
+    def planned(self) -> list[PlannedEpisode]:
+        """The paradigm's plan, each episode with a log of its own."""
         plan = list(self.paradigm.plan(self.config))
         names = [episode.key for episode in plan]
         if len(set(names)) != len(names):
             raise VdbError(f"paradigm {self.config.mode!r} planned two episodes with the same route, seed and "
                            f"name; each planned episode needs its own log")
+        return plan
+
+    def run_episodes(self) -> None:
+        """Every episode the paradigm plans, under the policy it gives, skipping complete logs (in lockstep
+        batches when :meth:`lockstep` says so)."""
+        plan = self.planned()
         context = RunContext(self.config, self.splicer)
+        if self.lockstep():
+            finished: list[PlannedEpisode] = []
+
+            def report(episode: PlannedEpisode) -> None:
+                finished.append(episode)
+                self._report(episode, len(finished), len(plan))
+
+            for chunk in self.lockstep_chunks():
+                self.run_chunk(chunk, context, report)
+            return
         for done, episode in enumerate(plan, start=1):
             self.ensure_episode(episode, self.paradigm.policy(episode, context))
-            if self.progress is not None:
-                self.progress(f"{episode.route.id} seed {episode.seed} {episode.name}", done, len(plan))
+            self._report(episode, done, len(plan))
+
+    def _report(self, episode: PlannedEpisode, done: int, total: int) -> None:
+        if self.progress is not None:
+            self.progress(f"{episode.route.id} seed {episode.seed} {episode.name}", done, total)
+
+    # -- lockstep batches (--batch B) --
+    def lockstep(self) -> bool:
+        """Whether the planned episodes advance in lockstep: ``--batch`` above 1, a
+        :class:`~vladrivebench.BatchedParadigm` and a :class:`~vladrivebench.BatchedModel` with
+        ``splice_cot_batch`` (without it a selfsplice could not mirror the batched generation)."""
+        from vladrivebench.protocols import BatchedModel, BatchedParadigm
+
+        model = self.component("model")
+        return (self.config.batch > 1 and isinstance(self.paradigm, BatchedParadigm)
+                and isinstance(model, BatchedModel) and callable(getattr(model, "splice_cot_batch", None)))
+
+    def lockstep_chunks(self) -> list[list[PlannedEpisode]]:
+        """The plan cut into fixed lockstep runs: the harvest baseline's lockstep group first (when the run
+        harvests and plans that baseline), then up to ``BATCH_JOB_FACTOR × batch`` consecutive episodes each,
+        never splitting a lockstep group. They depend only on the configuration, so a resumed run gives every
+        episode the same batch-mates."""
+        from vladrivebench._engine.sweep import BATCH_JOB_FACTOR
+
+        plan = self.planned()
+        groups = [self.paradigm.lockstep_group(e) for e in plan]
+        first: list[int] = []
+        if self.harvest_names:
+            key = (self.config.harvest_scenario.id, self.config.seeds[0], "baseline")
+            at = [i for i, e in enumerate(plan) if e.key == key]
+            if at:
+                group = groups[at[0]]
+                first = [i for i in range(len(plan)) if i == at[0] or (group is not None and groups[i] == group)]
+        rest = [i for i in range(len(plan)) if i not in set(first)]
+        size = BATCH_JOB_FACTOR * self.config.batch
+        chunks, current = ([first] if first else []), []
+        for n, i in enumerate(rest):
+            current.append(i)
+            following = rest[n + 1] if n + 1 < len(rest) else None
+            if len(current) >= size and (following is None or groups[i] is None or groups[following] != groups[i]):
+                chunks.append(current)
+                current = []
+        if current:
+            chunks.append(current)
+        return [[plan[i] for i in chunk] for chunk in chunks]
+
+    def run_chunk(self, chunk: Sequence[PlannedEpisode], context: RunContext,
+                  report: Callable[[PlannedEpisode], None] | None = None) -> None:
+        """Run ``chunk`` in lockstep, logging the episodes without a complete log; the complete ones run
+        again unlogged (only when some are missing) so every episode has its first run's batch-mates."""
+        from vladrivebench._engine.runner import LockstepEpisode, run_lockstep
+        from vladrivebench._logs.episodes import read_result
+
+        report = report or (lambda episode: None)
+        complete = {e.key for e in chunk if (p := self.episode_path(e)).exists() and read_result(p) is not None}
+        if len(complete) == len(chunk):
+            for episode in chunk:
+                report(episode)
+            return
+        writers: dict[tuple, Any] = {}
+        episodes = []
+        for planned in chunk:
+            policy = self.paradigm.policy(planned, context)
+            opener = None
+            if planned.key not in complete:
+                self.episode_path(planned).unlink(missing_ok=True)
+                opener = self._writer_opener(planned, writers)
+            wrap = policy.wrap_controller if isinstance(policy, WrapsController) else None
+            episodes.append(LockstepEpisode((planned, policy), planned.route, planned.seed, opener, policy=policy,
+                                            wrap_controller=wrap, group=self.paradigm.lockstep_group(planned)))
+
+        def done(episode: LockstepEpisode, finished: Any, writer: Any) -> None:
+            from vladrivebench._engine.runner import EpisodeFailure
+
+            planned = episode.key[0]
+            writers.pop(planned.key, None)
+            if isinstance(finished, EpisodeFailure):
+                if writer is not None:
+                    writer.__exit__(EpisodeFailure, finished, None)
+                raise _episode_error(self.episode_path(planned), finished)
+            if writer is not None:
+                writer.finish(finished.to_json())
+                writer.__exit__(None, None, None)
+            report(planned)
+
+        def step_batch(model: Any, lanes: Sequence[LockstepEpisode], observations: Sequence[Observation]) -> list:
+            return self.paradigm.step_batch(model, [LaneStep(e.key[0], e.key[1], obs, e.seed) for e, obs in
+                                                    zip(lanes, observations, strict=True)], context)
+
+        c = self.config
+        names = {"model": c.model.name, "simulator": c.simulator.name, "controller": c.controller.name}
+        try:
+            run_lockstep(episodes, c.batch, make_lane=self.lane, done=done, names=names,
+                         episode_batch_policy=step_batch)
+        except BaseException as exc:
+            for writer in writers.values():  # abandoned: their partial logs are removed
+                writer.__exit__(type(exc), exc, None)
+            raise
+
+    def lane(self, index: int) -> tuple[Any, Any, Any]:
+        """Lane ``index``'s ``(model, simulator, controller)``: the one model, a simulator and controller each."""
+        model = self.component("model")
+        if index == 0:
+            return model, self.component("simulator"), self.component("controller")
+        key = f"lane{index}"
+        if key not in self._components:
+            c = self.config
+            self._components[key] = (self.registry.create("simulator", c.simulator.name, c.simulator.options),
+                                     self.registry.create("controller", c.controller.name, c.controller.options))
+        return (model, *self._components[key])
+
+    def _writer_opener(self, planned: PlannedEpisode, writers: dict[tuple, Any]) -> Callable[[], Any]:
+        from vladrivebench._logs.episodes import EpisodeWriter
+
+        def open_writer() -> Any:
+            writer = EpisodeWriter(self.episode_path(planned), self.episode_meta(planned)).__enter__()
+            writers[planned.key] = writer
+            return writer
+
+        return open_writer
+
+    def episode_meta(self, episode: PlannedEpisode) -> dict[str, Any]:
+        """The metadata record of ``episode``'s log."""
+        from vladrivebench._engine.sweep import EpisodeJob, episode_meta
+
+        path, c = self.episode_path(episode), self.config
+        job = EpisodeJob(path.stem, str(path), episode.route, episode.seed, c.model, c.simulator, c.controller,
+                         {"intervention": c.to_json()}, dict(self.versions))
+        meta = episode_meta(job, self.component("model"), self.component("simulator"), self.registry)
+        meta["intervention"] = {"mode": c.mode, "role": episode.role, "condition": episode.condition}
+        return meta
 
     def ensure_episode(self, episode: PlannedEpisode, policy: Any) -> Path:
         """Run one episode into its log unless a complete log is already there; return its path."""
         from vladrivebench._engine.runner import EpisodeFailure, run_episode
-        from vladrivebench._engine.sweep import EpisodeJob, episode_meta
         from vladrivebench._logs.episodes import EpisodeWriter, read_result
 
         path = self.episode_path(episode)
@@ -579,10 +906,7 @@ class InterventionRun:
         if isinstance(policy, WrapsController):
             controller = policy.wrap_controller(controller)
         c, route, seed = self.config, episode.route, episode.seed
-        job = EpisodeJob(path.stem, str(path), route, seed, c.model, c.simulator, c.controller,
-                         {"intervention": c.to_json()}, dict(self.versions))
-        meta = episode_meta(job, model, sim, self.registry)
-        meta["intervention"] = {"mode": c.mode, "role": episode.role, "condition": episode.condition}
+        meta = self.episode_meta(episode)
         try:
             with EpisodeWriter(path, meta) as writer:
                 result = run_episode(model, sim, controller, route, seed, policy=policy, writer=writer,
@@ -590,11 +914,16 @@ class InterventionRun:
                                      controller_name=c.controller.name)
                 writer.finish(result.to_json())
         except EpisodeFailure as exc:
-            cause = exc.__cause__
-            if isinstance(cause, VdbError):
-                raise type(cause)(str(cause)) from None
-            raise VdbError(f"episode {path.stem} failed: {exc}") from None
+            raise _episode_error(path, exc) from None
         return path
+
+
+def _episode_error(path: Path, failure: Exception) -> VdbError:
+    """The one-line error a failed episode stops the run with (its cause's, when that was a VdbError)."""
+    cause = failure.__cause__
+    if isinstance(cause, VdbError):
+        return type(cause)(str(cause))
+    return VdbError(f"episode {path.stem} failed: {failure}")
 
 
 def build_paradigm(registry: Any, name: str, options: Mapping[str, Any] | None = None) -> Any:

@@ -11,6 +11,10 @@ and what it measures. The core's own (open-loop, closed-loop, safety) are built 
 - step policies: :class:`RunContext` (the run's :class:`Splicer`: resolve, check, splice and decode a
   condition with the pinned RNG streams), :func:`own_step`, :class:`BaselinePolicy`,
   :class:`OpenLoopPolicy`, :class:`InjectionPolicy`, :class:`ShadowController`, :class:`WrapsController`;
+- lockstep batches (``--batch B``): :class:`BatchedParadigm` (the optional capability), :class:`LaneStep`,
+  the batched steps of the built-in policies :func:`injection_step_batch` and :func:`open_loop_step_batch`,
+  :func:`selfsplice_many` (the gate within a batch) and the :class:`Splicer`'s ``own_many`` /
+  ``splice_many`` / ``decode_many``;
 - the selfsplice gate: :func:`gate_record` (one step's check, logged by a policy) and :class:`GateTally`
   (what ``analyse`` adds the logged records to); :func:`trajectory_difference`;
 - analysis from the logs: :class:`LoggedEpisodes`, :func:`episode_summary`, :class:`EpisodeSummary`,
@@ -43,6 +47,7 @@ from vladrivebench._intervention.runs import (
     GateTally,
     InjectionPolicy,
     InterventionConfig,
+    LaneStep,
     LoggedEpisodes,
     OpenLoopPolicy,
     PlannedEpisode,
@@ -54,7 +59,10 @@ from vladrivebench._intervention.runs import (
     episode_summary,
     gate_record,
     horizon_key,
+    injection_step_batch,
+    open_loop_step_batch,
     own_step,
+    selfsplice_many,
     trajectory_difference,
 )
 from vladrivebench._intervention.stats import (
@@ -73,7 +81,7 @@ from vladrivebench._intervention.stats import (
     t_interval,
     with_holm,
 )
-from vladrivebench.protocols import PilotEffects
+from vladrivebench.protocols import BatchedParadigm, PilotEffects
 
 __all__ = [
     # conditions
@@ -81,6 +89,8 @@ __all__ = [
     # planning and step policies
     "InterventionConfig", "PlannedEpisode", "RunContext", "Splicer", "own_step", "BaselinePolicy",
     "OpenLoopPolicy", "InjectionPolicy", "ShadowController", "WrapsController",
+    # lockstep batches (vdb intervene --batch)
+    "BatchedParadigm", "LaneStep", "injection_step_batch", "open_loop_step_batch", "selfsplice_many",
     # the selfsplice gate
     "gate_record", "GateTally", "trajectory_difference",
     # analysis from the logs

@@ -25,6 +25,7 @@ from vladrivebench.intervention import (
     EpisodeSummary,
     GateTally,
     InjectionPolicy,
+    LaneStep,
     LoggedEpisodes,
     PlannedEpisode,
     RunContext,
@@ -34,6 +35,7 @@ from vladrivebench.intervention import (
     episode_summary,
     from_json_number,
     horizon_key,
+    injection_step_batch,
     interval_text,
     json_number,
     model_text,
@@ -70,6 +72,16 @@ class ClosedLoopParadigm:
         if episode.condition is None:
             return BaselinePolicy()
         return InjectionPolicy(context.splicer, episode.condition, context.config.horizons)
+
+    def step_batch(self, model: Any, lanes: Sequence[LaneStep], context: RunContext) -> list[Any]:
+        """``--batch``: the lanes' own CoTs, the selfsplice mirror and the other injections in batched calls."""
+        return injection_step_batch(model, lanes, context)
+
+    def lockstep_group(self, episode: PlannedEpisode) -> Any:
+        """A seed's baseline and selfsplice episodes advance together: they are compared bit for bit."""
+        if episode.condition is None or episode.condition == SELFSPLICE:
+            return (episode.route.id, episode.seed)
+        return None
 
     def analyse(self, config: Mapping[str, Any], episodes: LoggedEpisodes, gate: GateTally) -> dict[str, Any]:
         """``{"closed_loop": {route: {"baseline", "stats", "episodes", "curves"}}}``."""

@@ -12,12 +12,13 @@ Built only from the public API, the way a third-party paradigm would be.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 from vladrivebench.intervention import (
     SELFSPLICE,
     GateTally,
+    LaneStep,
     LoggedEpisodes,
     OpenLoopPolicy,
     PlannedEpisode,
@@ -28,6 +29,7 @@ from vladrivebench.intervention import (
     model_text,
     number_text,
     open_loop_stats,
+    open_loop_step_batch,
     p_text,
     signed,
     t_interval,
@@ -55,6 +57,14 @@ class OpenLoopParadigm:
         """The own CoT drives; every tested condition is spliced and decoded at each step."""
         c = context.config
         return OpenLoopPolicy(context.splicer, c.tested, c.horizons, c.batch_conditions)
+
+    def step_batch(self, model: Any, lanes: Sequence[LaneStep], context: RunContext) -> list[Any]:
+        """``--batch``: the seeds' episodes in lockstep, each condition spliced for every lane in one call."""
+        return open_loop_step_batch(model, lanes, context)
+
+    def lockstep_group(self, episode: PlannedEpisode) -> Any:
+        """The episodes are independent of each other."""
+        return None
 
     def analyse(self, config: Mapping[str, Any], episodes: LoggedEpisodes, gate: GateTally) -> dict[str, Any]:
         """``{"open_loop": {route: {"stats": {horizon: [row, …]}, "steps": …}}}``."""
