@@ -17,7 +17,8 @@ should only cost a splice and an action decode. Printed per model and splice pat
 - the gate's own cost (K = 0 minus the baseline).
 
 Then (``--part lockstep``, or ``all``) ``vdb intervene --batch B`` on ``kv``: a closed-loop run (E.1, selfsplice,
-accel, pedestrian, car) and a safety run (SAFE.kerb-ped, accel), ``--lockstep-seeds`` seeds each, at B = 1 and
+accel, pedestrian, car), a safety run (SAFE.kerb-ped, accel) and an open-loop run (E.1, the closed-loop
+conditions), ``--lockstep-seeds`` seeds each, at B = 1 and
 each of ``--batches``; printed per run and B: wall and CPU seconds, the wall-time ratio against B = 1, whether
 the selfsplice gate held, and the largest trajectory difference batched vs unbatched — at step 0 (the same
 observation: floating point alone) and over every step (closed loop: with the drift it causes).
@@ -121,7 +122,8 @@ def bench_model(registry, label: str, name: str, options: dict, batch: bool, arg
 
 
 LOCKSTEP_RUNS = (("closed-loop", "E.1", ("selfsplice", "accel", "pedestrian", "car")),
-                 ("safety", "SAFE.kerb-ped", ("selfsplice", "accel")))
+                 ("safety", "SAFE.kerb-ped", ("selfsplice", "accel")),
+                 ("open-loop", "E.1", ("selfsplice", "accel", "pedestrian", "car")))
 
 
 def lockstep_run(registry, mode: str, route, conditions, seeds: int, batch: int, options: dict, out: Path
@@ -172,7 +174,7 @@ def bench_lockstep(registry, args, folder: Path) -> None:
     lines = [header]
     for mode, route_id, conditions in LOCKSTEP_RUNS:
         route = dataclasses.replace(resolve_scenarios(route_id, registry)[0], max_time_s=args.steps / 10.0)
-        episodes = args.lockstep_seeds * (1 + len(conditions))
+        episodes = args.lockstep_seeds * (1 if mode == "open-loop" else 1 + len(conditions))
         runs = {b: lockstep_run(registry, mode, route, conditions, args.lockstep_seeds, b, options,
                                 folder / f"{mode}-b{b}") for b in batches}
         for b, r in runs.items():
