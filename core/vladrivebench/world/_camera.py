@@ -167,7 +167,7 @@ class Camera:
         down_e = sp + down * cp
         with np.errstate(divide="ignore", invalid="ignore"):
             t = np.where(down_e > 1e-9, self.mount_height / down_e, np.inf)
-        fwd, left = t * forward_e, -t * right
+            fwd, left = t * forward_e, -t * right  # inf × 0 above the horizon: NaN, masked out below
         dist = np.hypot(fwd, left)
         hits = np.isfinite(t) & (dist <= self.max_range) & (fwd > 0)
         self._ground_index = np.flatnonzero(hits)
