@@ -1,10 +1,11 @@
 """Regenerate the result tables of this plugin's README with ``vdb`` commands (nothing is typed by hand).
 
-    python -m vdb_model_neural.results --out runs/neural [--quick] [--only kv-open-loop,suite]
+    python -m vdb_model_neural.results --out runs/neural [--quick] [--only kv-open-loop,suite] [--batch 16]
 
 Each experiment is one ``vdb`` command (printed before it runs); its stdout is pasted verbatim into the
 README between ``<!-- results:NAME -->`` and ``<!-- /results:NAME -->``. Output directories are resumed,
-so an interrupted regeneration redoes only what is missing.
+so an interrupted regeneration redoes only what is missing. Every ``vdb run`` / ``vdb intervene`` runs its
+episodes in lockstep batches of ``--batch`` (the same bytes for the same batch size; see the README).
 """
 
 from __future__ import annotations
@@ -23,6 +24,12 @@ DRIVING_SCENARIOS = "C.1,C.2,TL.1-red,TL.2-red,TL.3-red,TL.1-green"
 """Do the models stop for the blocking car and the red lights (and not for the car beside the lane or a
 green light)?"""
 QA_CONDITIONS = "selfsplice,accel,pedestrian,red-light,origbrake,origbrake-shuffle,depicts-all,depicts-50"
+
+
+def with_batch(commands: list[list[str]], batch: int) -> list[list[str]]:
+    """Append ``--batch B`` to the commands that run episodes (``vdb run``, ``vdb intervene``)."""
+    return [command + ["--batch", str(batch)] if command[0] in ("run", "intervene") else command
+            for command in commands]
 
 
 def experiments(seeds: dict[str, int]) -> list[tuple[str, list[list[str]]]]:
@@ -109,23 +116,29 @@ def main() -> None:
     parser.add_argument("--out", type=Path, required=True)
     parser.add_argument("--only", help="Comma-separated sections to regenerate (default: all).")
     parser.add_argument("--quick", action="store_true", help="Fewer seeds (a smoke run; tables are noisier).")
+    parser.add_argument("--batch", type=int, default=16,
+                        help="Episodes advanced in lockstep per model call (default 16; 1 = unbatched).")
     args = parser.parse_args()
+    if args.batch < 1:
+        parser.error(f"--batch must be a positive integer, got {args.batch}")
     seeds = ({"open": 3, "qa_open": 2, "closed": 3, "safety": 2, "driving": 2, "suite": 1} if args.quick
              else {"open": 7, "qa_open": 3, "closed": 5, "safety": 4, "driving": 5, "suite": 1})
     only = set(args.only.split(",")) if args.only else None
+    started = time.perf_counter()
     if not only or "training" in only:
         update_readme("training", training_table())
     for name, commands in experiments(seeds):
         if only and name not in only:
             continue
         outputs = []
-        for command in commands:
+        for command in with_batch(commands, args.batch):
             argv = [a.replace("{out}", str(args.out)) for a in command]
             text = run_vdb(argv)
             shown = " ".join(a.replace(str(args.out), "OUT") for a in argv)
             outputs.append(f"$ vdb {shown}\n{text.replace(str(args.out), 'OUT')}")
         update_readme(name, "```text\n" + "\n\n".join(outputs) + "\n```")
         print(f"README section {name} updated", file=sys.stderr)
+    print(f"all sections: {time.perf_counter() - started:.0f} s wall time", file=sys.stderr)
 
 
 if __name__ == "__main__":
