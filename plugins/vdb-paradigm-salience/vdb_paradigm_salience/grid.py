@@ -22,8 +22,8 @@ from vladrivebench.world import EGO_LENGTH, EGO_WIDTH, parse_scenario
 KINDS = ("pedestrian", "car", "animal")
 DEFAULT_KINDS = ("pedestrian", "car")
 DEFAULT_OFFSETS = (-1.0, 0.0)
-DEFAULT_DISTANCES = (50.0,)
-DEFAULT_SIZES = (0.7, 1.3)
+DEFAULT_DISTANCES = (25.0, 50.0)
+DEFAULT_SIZES = (1.0,)
 DEFAULT_MAX_TIME_S = 16.0
 """Episode length of every cell (s): on the SAFE routes the ego has stopped or hit the obstacle by ~14 s."""
 MIN_DISTANCE_M = 5.0
@@ -228,7 +228,7 @@ def check_grid(options: GridOptions, routes: Sequence[Scenario]) -> list[Scenari
     base = routes[0]
     base_obstacle(base)
     farthest = max_onset_distance(base)
-    if max(options.distances) > farthest:
+    if max(options.distances) > farthest + 1e-6:
         raise ConfigError(f"--paradigm-opt distances: {max(options.distances):g} m is beyond what route {base.id} "
                           f"allows ({farthest:.1f} m: the obstacle's distance when the ego starts cruising); "
                           f"expected distances from {MIN_DISTANCE_M:g} to {farthest:.0f} m")

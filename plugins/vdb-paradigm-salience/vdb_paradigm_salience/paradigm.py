@@ -69,7 +69,7 @@ class Salience:
 
     Options (``--paradigm-opt``): ``kinds`` (pedestrian, car, animal; default pedestrian,car), ``offsets``
     (m left of the ego lane's centre; default -1,0), ``distances`` (m from the ego's front to the obstacle
-    at injection onset; default 50), ``sizes`` (× the kind's default size; default 0.7,1.3) and ``max_time``
+    at injection onset; default 25,50), ``sizes`` (× the kind's default size; default 1) and ``max_time``
     (s per episode; default 16).
     """
 

@@ -63,7 +63,10 @@ def wilson(successes: int, trials: int, confidence: float = 0.95) -> tuple[float
     from statsmodels.stats.proportion import proportion_confint
 
     low, high = proportion_confint(successes, trials, alpha=1.0 - confidence, method="wilson")
-    return float(max(0.0, low)), float(min(1.0, high))
+    # analytically the bound is exactly 0 at k = 0 and 1 at k = n; floating point lands a hair inside
+    low = 0.0 if successes == 0 else float(max(0.0, low))
+    high = 1.0 if successes == trials else float(min(1.0, high))
+    return low, high
 
 
 def rate(successes: int, trials: int) -> float | None:
@@ -122,12 +125,21 @@ def _fit(usable: list[tuple[float, int, int]], excluded: int, confidence: float)
     k = np.asarray([p[1] for p in usable], float)
     n = np.asarray([p[2] for p in usable], float)
     design = sm.add_constant(x, has_constant="add")
-    with warnings.catch_warnings():
-        warnings.simplefilter("error")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
         try:
             result = sm.GLM(np.column_stack([k, n - k]), design, family=sm.families.Binomial()).fit()
-        except Exception as exc:  # statsmodels raises or warns (separation, convergence) as it sees fit
+        except Exception as exc:  # statsmodels raises on singular designs and the like
             return not_identifiable(f"the logistic fit failed ({type(exc).__name__}: {exc})", usable, excluded)
+    # statsmodels also warns of "perfect prediction" when the fit merely passes through every cell exactly
+    # (a saturated fit); it is separation only when the fitted probabilities reach 0 or 1
+    fitted = np.asarray(result.fittedvalues, float)
+    if np.any((fitted < 1e-8) | (fitted > 1 - 1e-8)):
+        return not_identifiable("the logistic fit reaches 0 % or 100 % (quasi-complete separation)", usable,
+                                excluded)
+    trouble = [w for w in caught if "converge" in str(w.message).lower()]
+    if trouble:
+        return not_identifiable(f"the logistic fit did not converge ({trouble[0].message})", usable, excluded)
     a, b = (float(v) for v in result.params)
     cov = np.asarray(result.cov_params(), float)
     if not (np.all(np.isfinite(result.params)) and np.all(np.isfinite(cov)) and result.converged) or b == 0.0:
