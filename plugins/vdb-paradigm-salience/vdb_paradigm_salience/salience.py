@@ -6,8 +6,9 @@ Two measures, both from the camera the model was given (its :class:`~vladriveben
   renderer (:class:`vladrivebench.world.Camera`), once with every actor and once without the obstacle;
   the pixels that differ (:func:`~vladrivebench.world.count_pixels_differing`) are the obstacle's footprint
   as the model saw it, after occlusion, clipping at the image border and the renderer's edge coverage. This
-  is what the fit uses: the projection of the obstacle's box (below) over-counts (its bounding rectangle
-  includes background, and the renderer draws a pedestrian narrower than its box).
+  is what the fit uses. The projection of the obstacle's box (below) is no substitute: its bounding
+  rectangle includes background (and the renderer draws a pedestrian narrower than its box), while far
+  away the renderer's partial edge pixels make the drawn footprint larger than the projected one.
 * **angular size** — projected: the obstacle's box (8 corners) in the camera frame through the pinhole
   intrinsics (focal length from ``hfov_deg``, principal point at the image centre); its bounding rectangle
   in pixels, clipped to the image, and the horizontal / vertical angles it spans,
