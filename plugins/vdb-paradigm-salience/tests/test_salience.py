@@ -9,8 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from vdb_paradigm_salience.salience import angular_size, box_corners, pixels_covered, to_camera
-from vladrivebench import CameraSpec, EgoState
-from vladrivebench.records import Actor
+from vladrivebench import Actor, CameraSpec, EgoState
 from vladrivebench.world import build_road, load_suite
 
 FRONT = CameraSpec("front", 160, 80, 90.0)
