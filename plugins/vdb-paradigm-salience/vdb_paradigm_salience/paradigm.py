@@ -347,23 +347,33 @@ def override_plot(results: Mapping[str, Any]) -> Plot:
 
 def draw_override(fig: Any, results: Mapping[str, Any]) -> None:
     """The figure: per kind, every cell as a point with its Wilson interval and its k/n, and the fit."""
+    from matplotlib.ticker import LogFormatter
+
     block = results["salience"]
     axes = fig.subplots(1, max(1, len(block["fits"])), squeeze=False, sharey=True)[0]
+    offsets = sorted({c["offset"] for c in block["cells"]})
+    colours = {o: f"C{i % 10}" for i, o in enumerate(offsets)}
     for ax, (kind, fit) in zip(axes, block["fits"].items(), strict=False):
         cells = [c for c in block["cells"] if c["kind"] == kind and c["counts"]["trials"] > 0
                  and c["salience"]["pixels"] > 0]
-        for c in cells:
-            x, y = c["salience"]["pixels"], c["override_rate"]
-            ax.errorbar([x], [y], yerr=[[y - c["low"]], [c["high"] - y]], fmt="o", color="tab:blue", capsize=2)
-            ax.annotate(f"{c['counts']['overrides']}/{c['counts']['trials']}", (x, y), fontsize=6,
-                        textcoords="offset points", xytext=(3, 3))
+        for offset in offsets:
+            chosen = [c for c in cells if c["offset"] == offset]
+            for i, c in enumerate(chosen):
+                x, y = c["salience"]["pixels"], c["override_rate"]
+                ax.errorbar([x], [y], yerr=[[y - c["low"]], [c["high"] - y]], fmt="o", color=colours[offset],
+                            capsize=2, label=f"offset {offset:g} m" if i == 0 else None)
+                ax.annotate(f"{c['counts']['overrides']}/{c['counts']['trials']}", (x, y), fontsize=6,
+                            textcoords="offset points", xytext=(3, 3))
         if fit["identifiable"] and cells:
             lo, hi = min(c["salience"]["pixels"] for c in cells), max(c["salience"]["pixels"] for c in cells)
             xs = [lo * (hi / lo) ** (i / 40) for i in range(41)]
-            ax.plot(xs, [fitted_rate(fit, x) for x in xs], color="tab:red", label="logistic fit")
+            ax.plot(xs, [fitted_rate(fit, x) for x in xs], color="black", label="logistic fit")
             ax.axvspan(fit["low"], fit["high"], color="tab:red", alpha=0.1, label="50 % point, interval")
+        if cells:
             ax.legend(fontsize=7)
         ax.set_xscale("log")
+        ax.xaxis.set_major_formatter(LogFormatter(labelOnlyBase=False))
+        ax.xaxis.set_minor_formatter(LogFormatter(labelOnlyBase=False, minor_thresholds=(2, 0.5)))
         ax.set_ylim(-0.05, 1.05)
         ax.set_title(kind if fit["identifiable"] else f"{kind} (threshold not identifiable)", fontsize=9)
         ax.set_xlabel("pixels covered at onset")
