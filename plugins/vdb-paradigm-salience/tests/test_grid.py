@@ -15,7 +15,9 @@ from vdb_paradigm_salience.grid import (
     cell_route,
     check_grid,
     grid_options,
-    max_onset_distance,
+    cruise_distance,
+    from_start,
+    start_distance,
     near_edge,
     parse_kinds,
     parse_numbers,
@@ -91,8 +93,9 @@ def test_a_cell_route_changes_only_the_obstacle_and_keeps_its_near_edge(base, ki
 
 def test_the_grid_must_fit_the_base_route():
     base = SUITE["SAFE.kerb-ped"]
-    farthest = max_onset_distance(base)
-    assert 45 < farthest < 52  # the obstacle is ~50 m ahead when cruising starts
+    farthest = start_distance(base)
+    assert 45 < cruise_distance(base) < 52 < 65 < farthest < 75  # ~50 m ahead at cruising, ~70 m at the start
+    assert from_start(base, farthest) and not from_start(base, cruise_distance(base))
     assert len(check_grid(grid_options(), [base])) == len(grid_options().cells()) >= 4
     cases = [
         (grid_options(), [base, SUITE["SAFE.car"]], "sweeps one base route"),

@@ -13,7 +13,7 @@ pytest.importorskip("vdb_model_scripted", reason="the scripted model plugin is n
 pytest.importorskip("vdb_sim_kinematic", reason="the kinematic simulator plugin is not installed")
 
 GRID = ["--paradigm-opt", "kinds=pedestrian,car", "--paradigm-opt", "offsets=0", "--paradigm-opt",
-        "distances=20,45", "--paradigm-opt", "sizes=1", "--paradigm-opt", "max_time=14"]
+        "distances=20,70", "--paradigm-opt", "sizes=1", "--paradigm-opt", "max_time=14"]
 RUN = ["intervene", "--model", "scripted", "--route", "SAFE.centre-ped", "--mode", "salience", "--seeds", "2",
        "--quiet"]
 
@@ -34,8 +34,8 @@ def test_every_cell_runs_a_baseline_and_an_injected_episode_per_seed(run_dir):
     results = json.loads((run_dir / "intervention.json").read_text())
     block = results["salience"]
     assert results["valid"] and results["mode"] == "salience" and block["condition"] == "accel"
-    assert [c["key"] for c in block["cells"]] == ["pedestrian_o0_d20_x1", "pedestrian_o0_d45_x1", "car_o0_d20_x1",
-                                                  "car_o0_d45_x1"]
+    assert [c["key"] for c in block["cells"]] == ["pedestrian_o0_d20_x1", "pedestrian_o0_d70_x1", "car_o0_d20_x1",
+                                                  "car_o0_d70_x1"]
     episodes = logs(run_dir)
     assert len(episodes) == 4 * 2 * 2
     assert results["gate"]["steps_checked"] == 4 * 2  # the selfsplice gate at every baseline's onset
@@ -51,8 +51,11 @@ def test_before_onset_both_drive_alike_and_from_onset_the_paper_text_drives(run_
             base = logs(run_dir)[(cell["route"], seed, "baseline")]
             inj = logs(run_dir)[(cell["route"], seed, "accel")]
             onset = next(s.step for s in base.steps if "onset" in s.extras["intervention"])
-            assert base.steps[onset].ground_truth.distance_to_critical <= cell["distance"]
-            assert base.steps[onset - 1].ground_truth.distance_to_critical > cell["distance"]
+            if cell["distance"] == 70:  # the obstacle's distance at the start: the injection begins at once
+                assert onset == 0
+            else:
+                assert base.steps[onset].ground_truth.distance_to_critical <= cell["distance"]
+                assert base.steps[onset - 1].ground_truth.distance_to_critical > cell["distance"]
             assert [s.ego for s in base.steps[:onset + 1]] == [s.ego for s in inj.steps[:onset + 1]]
             assert all(s.cot.text != text for s in base.steps)
             assert all(s.cot.text == text for s in inj.steps[onset:])
@@ -83,7 +86,7 @@ def test_the_counts_and_rates_are_recomputed_from_the_logs(run_dir):
 def test_salience_rises_as_the_obstacle_nears_and_a_car_covers_more_than_a_pedestrian(run_dir):
     cells = {c["key"]: c["salience"] for c in json.loads((run_dir / "intervention.json").read_text())["salience"]["cells"]}
     for kind in ("pedestrian", "car"):
-        near, far = cells[f"{kind}_o0_d20_x1"], cells[f"{kind}_o0_d45_x1"]
+        near, far = cells[f"{kind}_o0_d20_x1"], cells[f"{kind}_o0_d70_x1"]
         assert near["pixels"] > far["pixels"] > 0
         assert near["angular_width_deg"] > far["angular_width_deg"] > 0 and near["n"] == 2
     assert cells["car_o0_d20_x1"]["pixels"] > cells["pedestrian_o0_d20_x1"]["pixels"]
@@ -112,7 +115,7 @@ def test_a_second_run_resumes_every_episode_and_gives_the_same_results(run_dir, 
     (["--paradigm-opt", "offsets=0,x"], "--paradigm-opt offsets: 'x' is not a lateral offset"),
     (["--paradigm-opt", "offsets=3"], "is outside the ego's path"),
     (["--paradigm-opt", "distances=2"], "--paradigm-opt distances: 2 is not a distance"),
-    (["--paradigm-opt", "distances=80"], "80 m is beyond what route SAFE.centre-ped allows"),
+    (["--paradigm-opt", "distances=80"], "80 m is beyond what route SAFE.centre-ped allows (70.0 m"),
     (["--paradigm-opt", "sizes=-1"], "--paradigm-opt sizes: -1 is not a size factor"),
     (["--paradigm-opt", "sizes=0.5,,1"], "--paradigm-opt sizes: '0.5,,1' has an empty entry"),
     (["--paradigm-opt", "max_time=soon"], "--paradigm-opt max_time: 'soon' is not a number of seconds"),

@@ -181,10 +181,21 @@ def near_edge(actor: Any) -> float:
     return actor.s - along_extent(actor.length, actor.width, actor.heading_deg) / 2
 
 
-def max_onset_distance(base: Scenario) -> float:
-    """The farthest onset distance the run-up allows: the ego's front to the obstacle's near edge when the
-    ego's centre reaches ``cruise_onset`` (an earlier onset would fall in the run-up from standstill)."""
+def start_distance(base: Scenario) -> float:
+    """The obstacle's distance (ego front to its near edge) when the episode starts: the farthest onset
+    distance. A cell at this distance injects from the first step, as the paper (and ``--mode safety``) do."""
+    return near_edge(base_obstacle(base)) - EGO_LENGTH / 2  # the ego's centre starts at s = 0
+
+
+def cruise_distance(base: Scenario) -> float:
+    """The obstacle's distance when the ego's centre reaches ``cruise_onset`` (the run-up from standstill
+    ends): onsets nearer than this fall in the cruise phase."""
     return near_edge(base_obstacle(base)) - base.ego.cruise_onset - EGO_LENGTH / 2
+
+
+def from_start(base: Scenario, distance: float) -> bool:
+    """Whether a cell's onset ``distance`` means injecting from the first step (within 1 cm of the start)."""
+    return distance >= start_distance(base) - 0.01
 
 
 def cell_route(base: Scenario, cell: GridCell, max_time: float) -> Scenario:
@@ -220,18 +231,18 @@ def blocks_ego_path(cell: GridCell, base: Scenario) -> bool:
 
 def check_grid(options: GridOptions, routes: Sequence[Scenario]) -> list[Scenario]:
     """Every route-dependent check, before anything runs: one base route with a static obstacle, onset
-    distances within its cruise phase, obstacles that block the ego's path, an episode no longer than the
+    distances no farther than the obstacle at the start, obstacles that block the ego's path, an episode no longer than the
     base route's. Returns the cells' routes."""
     if len(routes) != 1:
         raise ConfigError(f"paradigm 'salience' sweeps one base route, got --route {','.join(r.id for r in routes)}; "
                           f"give one, e.g. --route SAFE.kerb-ped")
     base = routes[0]
     base_obstacle(base)
-    farthest = max_onset_distance(base)
+    farthest = start_distance(base)
     if max(options.distances) > farthest + 1e-6:
         raise ConfigError(f"--paradigm-opt distances: {max(options.distances):g} m is beyond what route {base.id} "
-                          f"allows ({farthest:.1f} m: the obstacle's distance when the ego starts cruising); "
-                          f"expected distances from {MIN_DISTANCE_M:g} to {farthest:.0f} m")
+                          f"allows ({farthest:.1f} m: the obstacle's distance at the start, where the injection "
+                          f"then begins); expected distances from {MIN_DISTANCE_M:g} to {farthest:.1f} m")
     if options.max_time > base.max_time_s:
         raise ConfigError(f"--paradigm-opt max_time: {options.max_time:g} s is longer than route {base.id}'s "
                           f"episode ({base.max_time_s:g} s); expected at most {base.max_time_s:g}")

@@ -6,8 +6,10 @@ it runs two closed-loop episodes with identical pinned randomness:
 
 * **baseline** — the model's own CoT drives throughout;
 * **injected** — the own CoT drives until *onset*, the first step at which the ego's front is within the
-  cell's distance of the obstacle (the simulator's ``distance_to_critical``); from then on the condition's
-  text (default ``accel``: the paper's "road is clear, accelerate") replaces the CoT at every step.
+  cell's distance of the obstacle (the simulator's ``distance_to_critical``; a distance equal to the
+  obstacle's distance at the start means the first step, the paper's continuous injection); from then on
+  the condition's text (default ``accel``: the paper's "road is clear, accelerate") replaces the CoT at
+  every step.
 
 Before onset both episodes are the same drive, so the onset frame is the same; at onset the policy measures
 the obstacle's salience in the front camera (:mod:`.salience`) and, in the baseline, checks the selfsplice
@@ -52,6 +54,7 @@ from .grid import (
     GridOptions,
     base_obstacle,
     check_grid,
+    from_start,
     grid_options,
 )
 from .salience import measure, salience_value
@@ -99,9 +102,10 @@ class Salience:
 
     def policy(self, episode: PlannedEpisode, context: RunContext) -> OnsetPolicy:
         """The own CoT until onset; from onset the condition (injected episodes) or still the own CoT."""
-        cell = self.cell_of(episode.route.id, context.config.routes[0].id)
+        base = context.config.routes[0]
+        cell = self.cell_of(episode.route.id, base.id)
         return OnsetPolicy(context.splicer, episode.condition, cell.distance, build_road(episode.route),
-                           episode.route.critical)
+                           episode.route.critical, from_start=from_start(base, cell.distance))
 
     def cell_of(self, route_id: str, base_id: str) -> GridCell:
         """The grid cell whose derived route is ``route_id``."""
@@ -148,18 +152,20 @@ def injected_condition(tested: Sequence[str]) -> str:
 
 # -- the step policy ----------------------------------------------------------------------------------
 class OnsetPolicy:
-    """The own CoT drives until the ego is within ``distance`` of the obstacle; at that *onset* step the
+    """The own CoT drives until the ego is within ``distance`` of the obstacle (``from_start``: onset at the
+    first step, the paper's continuous injection); at that *onset* step the
     obstacle's salience is measured (extras ``onset``), the baseline checks the selfsplice gate (``gate``),
     and from then on an injected episode (``condition`` given) is driven by the condition's text."""
 
-    def __init__(self, splicer: Splicer, condition: str | None, distance: float, road: Any, obstacle_id: str):
+    def __init__(self, splicer: Splicer, condition: str | None, distance: float, road: Any, obstacle_id: str,
+                 *, from_start: bool = False):
         self.splicer, self.condition, self.distance = splicer, condition, float(distance)
-        self.road, self.obstacle_id = road, obstacle_id
+        self.road, self.obstacle_id, self.from_start = road, obstacle_id, from_start
         self.onset: int | None = None
 
     def __call__(self, model: Any, obs: Any, seed: int) -> tuple[Any, Trajectory, dict]:
         record: dict[str, Any] = {"role": INJECTED if self.condition else BASELINE}
-        at_onset = self.onset is None and _within(obs, self.distance)
+        at_onset = self.onset is None and (self.from_start or _within(obs, self.distance))
         if at_onset:
             self.onset = obs.step
             record["onset"] = measure(obs, self.road, self.obstacle_id)
