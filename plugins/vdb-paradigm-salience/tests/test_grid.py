@@ -14,13 +14,13 @@ from vdb_paradigm_salience.grid import (
     base_obstacle,
     cell_route,
     check_grid,
-    grid_options,
     cruise_distance,
     from_start,
-    start_distance,
+    grid_options,
     near_edge,
     parse_kinds,
     parse_numbers,
+    start_distance,
 )
 from vladrivebench import ConfigError
 from vladrivebench.world import EGO_WIDTH, load_suite
