@@ -26,10 +26,11 @@ from .stats import wilson
 
 README = Path(__file__).resolve().parent.parent / "README.md"
 SECTION = "kv-salience"
-GRID = ("kinds=pedestrian,car", "offsets=-1,0", "distances=25,50", "sizes=1")
+GRID = ("kinds=pedestrian,car", "offsets=-1,0", "distances=25,50,70", "sizes=1")
 """The sweep of the README: SAFE.kerb-ped's pedestrian at the kerb (offset −1, as in SAFE.kerb-ped) and
 in the lane centre (0, as in SAFE.centre-ped), and a stopped car in the same places, with the injection
-from 25 m and from 50 m (where SAFE.* starts cruising)."""
+from 25 m, from 50 m (where SAFE.* starts cruising) and from the start (70 m: the paper's continuous
+injection, as ``--mode safety``)."""
 
 
 def command(out: Path, seeds: int, model: str, controller: str) -> list[str]:
