@@ -91,11 +91,13 @@ class Salience:
         check_grid(self.grid, config.routes)
 
     def plan(self, config: Any) -> list[PlannedEpisode]:
-        """Per cell and seed: the baseline, then the injected episode."""
+        """Per seed and cell: the baseline, then the injected episode. Seed-major, so that an interrupted
+        sweep has the same seeds in every cell (``--seeds`` of the part done analyses it)."""
         condition = injected_condition(config.tested)
+        routes = check_grid(self.grid, config.routes)
         plan = []
-        for route in check_grid(self.grid, config.routes):
-            for seed in config.seeds:
+        for seed in config.seeds:
+            for route in routes:
                 plan.append(PlannedEpisode(route, seed, BASELINE))
                 plan.append(PlannedEpisode(route, seed, INJECTED, condition))
         return plan
