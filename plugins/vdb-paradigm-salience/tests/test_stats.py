@@ -94,3 +94,9 @@ def test_a_flat_response_gives_a_wide_or_extrapolated_interval_never_a_false_pre
     fit = logistic_threshold([(10.0, 3, 4), (20.0, 3, 4), (40.0, 1, 4)])
     assert fit["identifiable"] and fit["slope"] < 0 and math.isfinite(fit["x50"])
     assert fit["low"] < fit["x50"] < fit["high"] and fit["slope_p"] > 0.05
+
+
+def test_a_50_percent_point_outside_the_observed_salience_is_not_identifiable_but_keeps_its_curve():
+    fit = logistic_threshold([(3.0, 2, 10), (4.0, 1, 10), (8.0, 0, 10)])
+    assert not fit["identifiable"] and fit["extrapolated"] and "lies outside the salience observed" in fit["reason"]
+    assert fitted_rate(fit, 4.0) == pytest.approx(1 / (1 + math.exp(-(fit["intercept"] + fit["slope"] * math.log(4)))))

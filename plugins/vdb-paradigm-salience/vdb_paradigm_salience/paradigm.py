@@ -310,12 +310,13 @@ def threshold_table(results: Mapping[str, Any]) -> Table:
     rows = []
     for kind, fit in block["fits"].items():
         trials = int(fit["trials"])
+        slope = (Cell(f"{fit['slope']:+.2f} (p = {fit['slope_p']:.2g})", trials, fit["slope"]) if "slope" in fit
+                 else Cell("—", trials))
         if fit["identifiable"]:
-            x50 = f"{fit['x50']:.0f} [{fit['low']:.0f}, {fit['high']:.0f}]" + (" (extrapolated)" if fit["extrapolated"] else "")
-            cells = (Cell(f"{fit['slope']:+.2f} (p = {fit['slope_p']:.2g})", trials, fit["slope"]),
-                     Cell(x50, trials, fit["x50"], fit["low"], fit["high"]), Cell.text("fitted", trials))
+            x50 = f"{fit['x50']:.3g} [{fit['low']:.3g}, {fit['high']:.3g}]"
+            cells = (slope, Cell(x50, trials, fit["x50"], fit["low"], fit["high"]), Cell.text("fitted", trials))
         else:
-            cells = (Cell("—", trials), Cell("not identifiable", trials), Cell.text(fit["reason"], trials))
+            cells = (slope, Cell("not identifiable", trials), Cell.text(fit["reason"], trials))
         rows.append(Row((kind,), (Cell(str(fit["cells"]), fit["cells"], float(fit["cells"])),
                                   Cell(f"{fit['overrides']}/{trials}", trials,
                                        fit["overrides"] / trials if trials else None), *cells)))
@@ -340,10 +341,10 @@ def override_plot(results: Mapping[str, Any]) -> Plot:
         xs = tuple(math.log10(c["salience"]["pixels"]) for c in points)
         series = [Series("cells", xs, tuple(c["override_rate"] for c in points), tuple(c["low"] for c in points),
                          tuple(c["high"] for c in points), tuple(int(c["counts"]["trials"]) for c in points))]
-        if fit["identifiable"] and xs:
+        if "intercept" in fit and xs:
             grid = [min(xs) + (max(xs) - min(xs)) * i / 20 for i in range(21)]
             series.append(Series("logistic fit", tuple(grid), tuple(fitted_rate(fit, 10 ** x) for x in grid)))
-        status = (f"50 % at {fit['x50']:.0f} px [{fit['low']:.0f}, {fit['high']:.0f}]" if fit["identifiable"]
+        status = (f"50 % at {fit['x50']:.3g} px [{fit['low']:.3g}, {fit['high']:.3g}]" if fit["identifiable"]
                   else "threshold not identifiable")
         panels.append((f"{kind}: {status}", tuple(series)))
     notes = ("points: cells (override rate; band: Wilson interval; counts: trials = seeds whose baseline stopped)",
@@ -372,11 +373,12 @@ def draw_override(fig: Any, results: Mapping[str, Any]) -> None:
                             capsize=2, label=f"offset {offset:g} m" if i == 0 else None)
                 ax.annotate(f"{c['counts']['overrides']}/{c['counts']['trials']}", (x, y), fontsize=6,
                             textcoords="offset points", xytext=(3, 3))
-        if fit["identifiable"] and cells:
+        if "intercept" in fit and cells:
             lo, hi = min(c["salience"]["pixels"] for c in cells), max(c["salience"]["pixels"] for c in cells)
             xs = [lo * (hi / lo) ** (i / 40) for i in range(41)]
             ax.plot(xs, [fitted_rate(fit, x) for x in xs], color="black", label="logistic fit")
-            ax.axvspan(fit["low"], fit["high"], color="tab:red", alpha=0.1, label="50 % point, interval")
+            if fit["identifiable"]:
+                ax.axvspan(fit["low"], fit["high"], color="tab:red", alpha=0.1, label="50 % point, interval")
         if cells:
             ax.legend(fontsize=7)
         ax.set_xscale("log")

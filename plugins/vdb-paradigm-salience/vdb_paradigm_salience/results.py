@@ -72,11 +72,13 @@ def answers(results: Mapping[str, Any]) -> list[str]:
     cells = block["cells"]
     lines = []
     for kind, fit in block["fits"].items():
-        if fit["identifiable"]:
+        if "slope" in fit:
             trend = "falls" if fit["slope"] < 0 else "rises"
-            lines.append(f"- {kind}: the override rate {trend} as salience rises (logistic slope {fit['slope']:+.2f} "
-                         f"per log pixel, p = {fit['slope_p']:.2g}); 50 % at {fit['x50']:.0f} px "
-                         f"[{fit['low']:.0f}, {fit['high']:.0f}]" + (" (extrapolated)" if fit["extrapolated"] else ""))
+            significant = "" if fit["slope_p"] < 0.05 else ", not significantly"
+            where = (f"50 % at {fit['x50']:.3g} px [{fit['low']:.3g}, {fit['high']:.3g}]" if fit["identifiable"]
+                     else f"threshold not identifiable: {fit['reason']}")
+            lines.append(f"- {kind}: the override rate {trend} as salience rises{significant} (logistic slope "
+                         f"{fit['slope']:+.2f} per log pixel, p = {fit['slope_p']:.2g}); {where}")
         else:
             lines.append(f"- {kind}: no salience threshold — not identifiable ({fit['reason']}); "
                          f"{fit['overrides']}/{fit['trials']} trials overridden over {fit['cells']} cells")

@@ -9,8 +9,9 @@
   interval is the delta method on ``log x50 = −a / b`` (gradient ``(−1/b, a/b²)`` with the fit's covariance),
   exponentiated. The threshold is *not identifiable* — and reported so, with the reason — when fewer than two
   distinct salience values have trials, when the outcomes do not vary, when the cells separate perfectly
-  (every cell below some salience at 0 % and above at 100 %, or the reverse), or when the fit does not
-  converge or has no finite standard errors.
+  (every cell below some salience at 0 % and above at 100 %, or the reverse), when the fit does not
+  converge or has no finite standard errors, or when the fitted 50 % point lies outside the salience
+  observed (an extrapolation the data do not support).
 """
 
 from __future__ import annotations
@@ -101,7 +102,8 @@ def logistic_threshold(points: Sequence[tuple[float, int, int]], confidence: flo
     Cells without trials or with salience ≤ 0 (nothing seen: log undefined) are left out and counted in
     ``excluded_cells``. Returns ``identifiable``, and either ``reason`` or the fit: ``intercept``, ``slope``
     (per unit log salience) with its ``slope_p``, ``x50`` with ``low``/``high``, and ``extrapolated`` when
-    x50 lies outside the salience values observed.
+    x50 lies outside the salience values observed — then ``identifiable`` is false too (the data do not
+    place the 50 % point) and ``reason`` gives the extrapolated value; the fitted curve is kept.
     """
     usable = [(float(x), int(k), int(n)) for x, k, n in points if n > 0 and x > 0 and math.isfinite(x)]
     excluded = len(points) - len(usable)
@@ -153,16 +155,21 @@ def _fit(usable: list[tuple[float, int, int]], excluded: int, confidence: float)
         return not_identifiable("the 50 % point lies far outside any salience (overflow)", usable, excluded)
     observed = [p[0] for p in usable]
     x50 = math.exp(log_x50)
-    return {"identifiable": True, "reason": None, "method": METHOD, "cells": len(usable),
-            "trials": int(n.sum()), "overrides": int(k.sum()), "excluded_cells": excluded,
-            "intercept": a, "slope": b, "slope_p": float(result.pvalues[1]), "x50": x50,
-            "low": math.exp(bounds[0]), "high": math.exp(bounds[1]), "log_x50_se": se,
-            "extrapolated": not min(observed) <= x50 <= max(observed)}
+    fit = {"identifiable": True, "reason": None, "method": METHOD, "cells": len(usable),
+           "trials": int(n.sum()), "overrides": int(k.sum()), "excluded_cells": excluded,
+           "intercept": a, "slope": b, "slope_p": float(result.pvalues[1]), "x50": x50,
+           "low": math.exp(bounds[0]), "high": math.exp(bounds[1]), "log_x50_se": se,
+           "extrapolated": not min(observed) <= x50 <= max(observed)}
+    if fit["extrapolated"]:  # the data do not place the 50 % point: say so rather than print an extrapolation
+        fit["identifiable"] = False
+        fit["reason"] = (f"the fitted 50 % point ({x50:.3g} px) lies outside the salience observed "
+                         f"({min(observed):.3g}–{max(observed):.3g} px); slope {b:+.2f}, p = {fit['slope_p']:.2g}")
+    return fit
 
 
 def fitted_rate(fit: Mapping[str, Any], salience: float) -> float | None:
     """The fitted override probability at ``salience`` (``None`` when the fit is not identifiable)."""
-    if not fit.get("identifiable") or salience <= 0:
+    if "intercept" not in fit or salience <= 0:
         return None
     eta = fit["intercept"] + fit["slope"] * math.log(salience)
     return 1.0 / (1.0 + math.exp(-eta)) if eta > -700 else 0.0
