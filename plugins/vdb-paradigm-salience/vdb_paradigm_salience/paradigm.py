@@ -33,6 +33,7 @@ from vladrivebench import ConfigError, Trajectory, step_rng
 from vladrivebench.intervention import (
     SELFSPLICE,
     GateTally,
+    LaneStep,
     LoggedEpisodes,
     PlannedEpisode,
     RunContext,
@@ -40,6 +41,7 @@ from vladrivebench.intervention import (
     gate_record,
     model_text,
     own_step,
+    selfsplice_many,
 )
 from vladrivebench.metrics import Cell, Plot, Row, Series, Table
 from vladrivebench.world import build_road, parse_scenario
@@ -109,6 +111,37 @@ class Salience:
         return OnsetPolicy(context.splicer, episode.condition, cell.distance, build_road(episode.route),
                            episode.route.critical, from_start=from_start(base, cell.distance))
 
+    def step_batch(self, model: Any, lanes: Sequence[LaneStep], context: RunContext) -> list[Any]:
+        """``vdb intervene --batch``: every lane's own CoT in one batched generation, the onset gates from the
+        selfsplice mirror of that generation (bit for bit), the injected lanes' texts in one splice."""
+        sp = context.splicer
+        observations, seeds = [lane.obs for lane in lanes], [lane.seed for lane in lanes]
+        begun = [lane.policy.begin(lane.obs) for lane in lanes]
+        owns, own_trajectories = sp.own_many(observations, seeds)
+        gated = [i for i, (lane, (_, at_onset)) in enumerate(zip(lanes, begun, strict=True))
+                 if at_onset and lane.policy.condition is None]
+        if gated:
+            mirrored, mirrored_trajectories = selfsplice_many(sp, observations, owns, seeds)
+            for i in gated:
+                begun[i][0]["gate"] = gate_record(model, owns[i], own_trajectories[i], mirrored[i],
+                                                  mirrored_trajectories[i], observations[i], seeds[i])
+        injecting = [i for i, lane in enumerate(lanes) if lane.policy.injecting]
+        outputs = {i: (owns[i], own_trajectories[i], {"intervention": begun[i][0]})
+                   for i in range(len(lanes)) if i not in injecting}
+        if injecting:
+            names = [lanes[i].policy.condition for i in injecting]
+            texts = [sp.injection(sp.resolver(owns[i]), name) for i, name in zip(injecting, names, strict=True)]
+            rows_obs, rows_seeds = [observations[i] for i in injecting], [seeds[i] for i in injecting]
+            cots = sp.splice_many(rows_obs, names, texts, rows_seeds)
+            for i, cot, trajectory in zip(injecting, cots, sp.decode_many(rows_obs, cots, rows_seeds), strict=True):
+                outputs[i] = lanes[i].policy.injected_output(begun[i][0], observations[i], owns[i], cot, trajectory)
+        return [outputs[i] for i in range(len(lanes))]
+
+    def lockstep_group(self, episode: PlannedEpisode) -> Any:
+        """A cell's baseline and injected episode of one seed share every batch: they are the same drive,
+        compared step for step, until onset."""
+        return (episode.route.id, episode.seed)
+
     def cell_of(self, route_id: str, base_id: str) -> GridCell:
         """The grid cell whose derived route is ``route_id``."""
         for cell in self.grid.cells():
@@ -166,12 +199,8 @@ class OnsetPolicy:
         self.onset: int | None = None
 
     def __call__(self, model: Any, obs: Any, seed: int) -> tuple[Any, Trajectory, dict]:
-        record: dict[str, Any] = {"role": INJECTED if self.condition else BASELINE}
-        at_onset = self.onset is None and (self.from_start or _within(obs, self.distance))
-        if at_onset:
-            self.onset = obs.step
-            record["onset"] = measure(obs, self.road, self.obstacle_id)
-        if self.condition is None or self.onset is None:
+        record, at_onset = self.begin(obs)
+        if not self.injecting:
             own, trajectory = own_step(model, obs, seed)
             if at_onset and self.condition is None:
                 record["gate"] = self._gate(model, obs, seed, own, trajectory)
@@ -179,11 +208,29 @@ class OnsetPolicy:
         sp = self.splicer
         own = model.generate_cot(obs, step_rng(seed, obs.step, "cot", obs.scenario_id))
         injected = sp.splice(obs, self.condition, sp.injection(sp.resolver(own), self.condition), seed)
-        trajectory = sp.decode(obs, injected, seed)
+        return self.injected_output(record, obs, own, injected, sp.decode(obs, injected, seed))
+
+    def begin(self, obs: Any) -> tuple[dict[str, Any], bool]:
+        """This step's intervention record and whether it is the onset step (measured there)."""
+        record: dict[str, Any] = {"role": INJECTED if self.condition else BASELINE}
+        at_onset = self.onset is None and (self.from_start or _within(obs, self.distance))
+        if at_onset:
+            self.onset = obs.step
+            record["onset"] = measure(obs, self.road, self.obstacle_id)
+        return record, at_onset
+
+    @property
+    def injecting(self) -> bool:
+        """An injected episode at or after its onset: the condition's text drives."""
+        return self.condition is not None and self.onset is not None
+
+    def injected_output(self, record: dict[str, Any], obs: Any, own: Any, injected: Any,
+                        trajectory: Any) -> tuple[Any, Trajectory, dict]:
+        """The step's output under the condition (the own CoT logged as the shadow)."""
         problem = trajectory.problems() if isinstance(trajectory, Trajectory) else "not a Trajectory"
         if problem:
-            raise ConfigError(f"model {sp.model_name!r} at step {obs.step}: unusable trajectory under condition "
-                              f"{self.condition!r}: {problem}")
+            raise ConfigError(f"model {self.splicer.model_name!r} at step {obs.step}: unusable trajectory under "
+                              f"condition {self.condition!r}: {problem}")
         record.update(condition=self.condition, shadow_text=own.text)
         return injected, trajectory, {"intervention": record}
 
