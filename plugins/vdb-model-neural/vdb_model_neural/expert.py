@@ -1,8 +1,10 @@
 """The expert driver that writes the training data: perfect perception (the simulator's ground truth),
 a rule-based decision, a planned 3 s rollout, and template CoTs with paraphrase variety in both formats.
 
-Decision rules: stop for a blocking pedestrian, car or animal within 40 m and for a red (or stoppable
-yellow) light within 100 m; stop at a stop sign, then proceed; otherwise cruise. The plan is a unicycle rollout at
+Decision rules: stop for a blocking pedestrian, car or animal within 40 m — and for a pedestrian or
+animal *near the path* (on the carriageway, or at the ego lane's kerb: :func:`near_path`), which one camera
+frame cannot tell from one that is about to step into the lane — and for a red (or stoppable yellow)
+light within 100 m; stop at a stop sign, then proceed; otherwise cruise. The plan is a unicycle rollout at
 10 Hz: the speed follows ``min(cruise, sqrt(2·b·distance-to-stop-point))``, the curvature comes from
 pure pursuit on the route centre line (``GroundTruth.route_ahead``).
 
@@ -44,6 +46,13 @@ pedestrian (~1 m²) only from ~10 m, when from cruise speed not even full brakin
 DENIAL_SHARE = 0.3
 ACCEL_BONUS = 0.5  # m/s above cruise when the CoT says "accelerate": what the expert says, it does
 OBSTACLE_KINDS = ("pedestrian", "car", "animal")
+WALKER_KINDS = ("pedestrian", "animal")
+LANE_HALF_WIDTH = 1.75  # m: the suite's 3.5 m lanes
+OPPOSITE_LANE_WIDTH = 3.5
+KERB_CAUTION = 1.0
+"""m beyond the ego lane's right edge within which a walker counts as near the path: a pedestrian about to
+step off the kerb looks, in one frame, like one standing there (the suite's crossing walkers stand 1.5 m
+beyond the edge, P.4's reaches this zone 0.2 s after it starts walking, 12 m ahead of a cruising ego)."""
 
 
 @dataclass(frozen=True)
@@ -75,7 +84,7 @@ class ExpertDriver:
             return Decision("go", "clear")
         kind = critical.kind
         if kind in OBSTACLE_KINDS:
-            if gt.blocking and -1.0 < distance <= REACT_DISTANCE:
+            if -1.0 < distance <= REACT_DISTANCE and (gt.blocking or near_path(obs)):
                 return Decision("stop", "blocking", kind, distance - OBSTACLE_MARGIN)
             return Decision("go", "not_blocking" if distance > -1.0 else "passed", kind)
         if kind == "traffic_light":
@@ -164,6 +173,33 @@ def pursuit_curvature(route: np.ndarray, x: float, y: float, heading: float, loo
     lateral = -math.sin(heading) * dx + math.cos(heading) * dy
     dist2 = max(dx * dx + dy * dy, 1e-6)
     return float(np.clip(2.0 * lateral / dist2, -0.3, 0.3))
+
+
+def lateral_offset(obs: Observation, x: float, y: float) -> float:
+    """Signed offset (m, left positive) of world point (x, y) from the lane centre, by the route ahead."""
+    forward, left = obs.ego.to_ego_frame(x, y)
+    route = np.asarray(obs.ground_truth.route_ahead, dtype=float) if obs.ground_truth.route_ahead else None
+    if route is None or len(route) < 2:
+        return left
+    route = np.vstack([[0.0, 0.0], route])
+    nearest = int(np.argmin(np.hypot(route[:, 0] - forward, route[:, 1] - left)))
+    a, b = route[max(nearest - 1, 0)], route[min(nearest + 1, len(route) - 1)]
+    tangent = (b - a) / max(float(np.hypot(*(b - a))), 1e-9)
+    rel = np.array([forward, left]) - route[nearest]
+    return float(tangent[0] * rel[1] - tangent[1] * rel[0])
+
+
+def near_path(obs: Observation) -> bool:
+    """Whether the critical walker (pedestrian, animal) is near the ego's path though not in its lane: on the
+    carriageway (the opposite lane) or within :data:`KERB_CAUTION` of the ego lane's right edge. One frame
+    does not show whether it is walking, so the expert yields to it as if it were about to cross."""
+    critical = obs.ground_truth.critical()
+    if critical is None or critical.kind not in WALKER_KINDS:
+        return False
+    offset = lateral_offset(obs, critical.x, critical.y)
+    half = 0.5 * max(critical.width, critical.length)
+    return (offset + half >= -LANE_HALF_WIDTH - KERB_CAUTION
+            and offset - half <= LANE_HALF_WIDTH + OPPOSITE_LANE_WIDTH)
 
 
 def salience(obs: Observation) -> float:
@@ -343,7 +379,9 @@ def objects_answer(obs: Observation, decision: Decision, rng: np.random.Generato
     where = f"<{-left:.2f}, {forward:.2f}>"
     name = {"pedestrian": "Pedestrian", "car": "Car", "animal": "Animal", "traffic_light": "Traffic light",
             "stop_sign": "Stop sign"}.get(critical.kind, "Object")
-    if critical.kind in OBSTACLE_KINDS:
+    if critical.kind in OBSTACLE_KINDS and not gt.blocking and decision.action == "stop":
+        state = pick(rng, ["beside the lane, close to the path.", "near the lane ahead, about to enter the path."])
+    elif critical.kind in OBSTACLE_KINDS:
         state = (pick(rng, ["standing in the lane, blocking the path.", "in the lane ahead, blocking the path."])
                  if gt.blocking else pick(rng, ["outside the lane, not blocking the path.",
                                                 "beside the lane, not in the path."]))

@@ -311,7 +311,7 @@ def run(models: list[str], seed: int, episodes: int, steps: int | None, out: Pat
 @click.command("train-neural")
 @click.option("--model", "model", type=click.Choice(["kv", "qa", "both"]), default="both", show_default=True)
 @click.option("--seed", type=int, default=0, show_default=True)
-@click.option("--episodes", type=click.IntRange(1), default=360, show_default=True,
+@click.option("--episodes", type=click.IntRange(1), default=420, show_default=True,
               help="Expert episodes of randomised scenario variants to learn from.")
 @click.option("--steps", type=click.IntRange(1), default=None, help="Optimiser steps (default per model).")
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
