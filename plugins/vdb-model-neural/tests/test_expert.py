@@ -180,6 +180,13 @@ def test_cot_templates_cover_every_decision():
         slots = expert.slot_cot(observation(kind=kind, distance=10.0, blocking=True), decision, rng)
         assert set(slots) == {"scene", "objects", "decision"} and "stop" in slots["decision"]
         assert slots["objects"].startswith(kind.capitalize())
+    for kind in ("pedestrian", "animal"):  # yielding to a walker near the path never claims it blocks the lane
+        decision = expert.Decision("stop", "near_path", kind, 5.0)
+        for speed in (0.0, 5.0):
+            sentence = expert.sentence_cot(decision, speed, rng).lower()
+            assert kind in sentence and "blocking" not in sentence
+        slots = expert.slot_cot(observation(kind=kind, distance=10.0, offset=3.0), decision, rng)
+        assert "blocking" not in slots["objects"] + slots["decision"] and "stop" in slots["decision"]
 
 
 @settings(max_examples=60, deadline=None)

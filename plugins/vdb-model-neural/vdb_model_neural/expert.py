@@ -84,8 +84,10 @@ class ExpertDriver:
             return Decision("go", "clear")
         kind = critical.kind
         if kind in OBSTACLE_KINDS:
-            if -1.0 < distance <= REACT_DISTANCE and (gt.blocking or near_path(obs)):
+            if -1.0 < distance <= REACT_DISTANCE and gt.blocking:
                 return Decision("stop", "blocking", kind, distance - OBSTACLE_MARGIN)
+            if -1.0 < distance <= REACT_DISTANCE and near_path(obs):
+                return Decision("stop", "near_path", kind, distance - OBSTACLE_MARGIN)
             return Decision("go", "not_blocking" if distance > -1.0 else "passed", kind)
         if kind == "traffic_light":
             colour = gt.light_state or critical.state
@@ -267,6 +269,14 @@ STOP_SENTENCES = {
         "Slow down and stop because an animal is standing in the lane ahead.",
         "Brake to yield to the animal that is blocking the path.",
     ],
+    "pedestrian_near": [
+        "Slow down and stop to yield to the pedestrian near the lane ahead.",
+        "Brake because a pedestrian on the road ahead may cross into the path.",
+        "Stop and let the pedestrian ahead cross the road.",
+    ],
+    "animal_near": [
+        "Slow down and stop because an animal on the road ahead may cross into the path.",
+    ],
     "red_light": [
         "Stop for the red traffic light ahead because it requires the vehicle to stop.",
         "Slow down and stop at the intersection since the traffic light is red.",
@@ -290,6 +300,9 @@ WAIT_SENTENCES = {
     "car": ["Remain stopped behind the stationary car that is blocking the lane.",
             "Stay stopped because the car ahead is still blocking the lane."],
     "animal": ["Remain stopped because the animal is still blocking the lane."],
+    "pedestrian_near": ["Remain stopped and let the pedestrian cross the road.",
+                        "Stay stopped until the pedestrian near the lane has crossed."],
+    "animal_near": ["Remain stopped until the animal near the lane has crossed."],
     "red_light": ["Remain stopped at the red traffic light.", "Stay stopped while the traffic light is red."],
     "yellow_light": ["Remain stopped at the traffic light."],
     "stop_sign": ["Remain stopped at the stop sign."],
@@ -333,6 +346,8 @@ def pick(rng: np.random.Generator, options: list[str]) -> str:
 def stop_kind(decision: Decision) -> str:
     if decision.kind == "traffic_light":
         return "yellow_light" if decision.reason == "yellow" else "red_light"
+    if decision.reason == "near_path" and decision.kind in WALKER_KINDS:
+        return f"{decision.kind}_near"
     return decision.kind or "car"
 
 
