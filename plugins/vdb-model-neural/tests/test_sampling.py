@@ -92,6 +92,8 @@ def test_the_memo_gives_back_sampled_tokens_only_for_non_canonical_ones():
     memo.remember("ef", [5, 6], canonical=[7])
     memo.remember("gh", [5, 6], canonical=[7])
     assert memo.tokens("ab", lambda t: [3]) == [3]  # the oldest left the bounded memo
+    memo.clear()
+    assert memo.tokens("gh", lambda t: [7]) == [7]
 
 
 # -- options ----------------------------------------------------------------------------------------------

@@ -167,7 +167,9 @@ class KVModel(BundledModel):
 
     # -- protocol ------------------------------------------------------------------------------------
     def reset(self, seed: int) -> None:
+        """A new episode: forget the cached prefix and the tokens sampled in earlier episodes."""
         self._prefix_key, self._prefix = None, None
+        self.token_memo.clear()
 
     def generate_cot(self, obs: Observation, rng: np.random.Generator) -> CoT:
         """A CoT between ``<cot>`` and ``</cot>``, sampled with the model's temperature and top-p (one draw

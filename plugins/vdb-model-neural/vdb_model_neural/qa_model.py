@@ -135,7 +135,9 @@ class QAModel(BundledModel):
 
     # -- protocol ------------------------------------------------------------------------------------
     def reset(self, seed: int) -> None:
+        """A new episode: forget the cached prefix and the tokens sampled in earlier episodes."""
         self._prefix_key, self._prefix = None, None
+        self.token_memo.clear()
 
     def generate_cot(self, obs: Observation, rng: np.random.Generator) -> CoT:
         """Three QA rounds, each answer sampled (one draw from ``rng``, the pinned ``cot`` stream, per

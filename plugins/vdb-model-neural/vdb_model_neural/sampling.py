@@ -80,6 +80,11 @@ class TokenMemo:
         while len(self._tokens) > self.capacity:
             self._tokens.popitem(last=False)
 
+    def clear(self) -> None:
+        """Forget every text (a model does at each episode's reset, so an episode never depends on which
+        episodes the same model object ran before it)."""
+        self._tokens.clear()
+
     def tokens(self, text: str, encode) -> list[int]:
         """The tokens to feed for ``text``: the sampled ones if this model sampled it, else ``encode(text)``."""
         known = self._tokens.get(text)
