@@ -47,7 +47,7 @@ from .kv_model import _observation_key, controls_to_trajectory
 SLOTS = ("scene", "objects", "decision")
 VISION_READOUT = 8  # features per vision token the planner reads
 LOG_STD_RANGE = (-7.0, 0.0)
-"""Bounds of the planner's log standard deviation (normalised control units)."""
+"""Bounds of the planner's log standard deviation (normalised control units: 1 is 3 m/s² or 0.1 1/m)."""
 QUESTIONS = {
     "scene": "Q: Describe the driving scene.",
     "objects": "Q: Which objects matter, and where are they?",
@@ -81,7 +81,8 @@ class QANetwork(nn.Module):
         standard deviation ``(B, T, 2)`` each of the normalised controls (acceleration, curvature)."""
         features = torch.cat([self.plan_norm(hidden), self.vision_readout(vision).flatten(1)], dim=-1)
         out = self.planner(features).reshape(hidden.shape[0], self.config.horizon_steps, 4)
-        return out[..., :2], out[..., 2:].clamp(*LOG_STD_RANGE)
+        low, high = LOG_STD_RANGE  # a smooth bound: the deviation's gradient never vanishes at an edge
+        return out[..., :2], low + (high - low) * torch.sigmoid(out[..., 2:])
 
     def plan(self, hidden: torch.Tensor, vision: torch.Tensor, noise: torch.Tensor | None = None,
              scale: float = 1.0) -> torch.Tensor:
