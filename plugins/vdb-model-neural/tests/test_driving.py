@@ -76,11 +76,13 @@ def test_the_models_say_what_they_should_stop_for(models, frames, name, scenario
 
 @pytest.mark.parametrize("name, controller, scenario_id", [
     ("kv", "mpc", "TL.1-red"), ("kv", "mpc", "C.1"), ("qa", "pid", "TL.3-red"), ("qa", "pid", "C.2"),
+    ("kv", "mpc", "P.4"), ("qa", "pid", "P.2"),
 ])
 def test_the_models_drive_the_scenario_closed_loop(models, name, controller, scenario_id):
     """Closed loop (the frames above are open loop): a model whose reading flickers as it approaches runs the
     light or hits the car here; one whose steering drifts off the lane centre ends up in front of the car
-    beside the lane (C.2: the previous ``qa`` drifted 3.4 m across and stopped there)."""
+    beside the lane (C.2: the previous ``qa`` drifted 3.4 m across and stopped there); one that waits for a
+    crossing pedestrian to be in its lane before braking hits it (P.2, P.4: both previous models did)."""
     import dataclasses
 
     from vladrivebench.episodes import build_component

@@ -73,12 +73,37 @@ def test_pure_pursuit_steers_towards_the_route(side, lateral, heading):
 
 
 @settings(max_examples=60, deadline=None)
-@given(distance=st.floats(-0.5, 40.0), kind=st.sampled_from(["pedestrian", "car"]), blocking=st.booleans())
-def test_the_expert_stops_exactly_for_blocking_road_users(distance, kind, blocking):
-    decision = expert.ExpertDriver().decide(observation(kind=kind, distance=distance, blocking=blocking))
-    assert decision.action == ("stop" if blocking else "go")
-    if blocking:
+@given(distance=st.floats(-0.5, 40.0), kind=st.sampled_from(["pedestrian", "car"]), blocking=st.booleans(),
+       offset=st.sampled_from([0.0, -4.0, 6.5]))
+def test_the_expert_stops_exactly_for_blocking_road_users(distance, kind, blocking, offset):
+    decision = expert.ExpertDriver().decide(observation(kind=kind, distance=distance, blocking=blocking,
+                                                        offset=offset if not blocking else 0.0))
+    stops = blocking or (kind == "pedestrian" and offset == 0.0)  # a walker in the lane is near the path
+    assert decision.action == ("stop" if stops else "go")
+    if stops:
         assert decision.stop_distance == distance - expert.OBSTACLE_MARGIN
+
+
+@settings(max_examples=100, deadline=None)
+@given(offset=st.floats(-8.0, 9.0), distance=st.floats(0.5, 40.0), kind=st.sampled_from(["pedestrian", "car"]),
+       heading=st.floats(-0.2, 0.2))
+def test_a_walker_on_the_carriageway_or_at_the_kerb_is_yielded_to_a_car_beside_the_lane_is_not(
+        offset, distance, kind, heading):
+    obs = observation(kind=kind, distance=distance, offset=offset)
+    # the lane centre turned by ``heading`` around the ego: the offset is measured across the route
+    c, s = math.cos(heading), math.sin(heading)
+    route = tuple((c * x - s * y, s * x + c * y) for x, y in STRAIGHT)
+    forward = 2.35 + distance
+    actor = obs.ground_truth.actors[0]
+    moved = type(actor)(actor.actor_id, kind, x=c * forward - s * offset, y=s * forward + c * offset,
+                        length=actor.length, width=actor.width, height=actor.height)
+    gt = type(obs.ground_truth)(**{**obs.ground_truth.__dict__, "actors": (moved,), "route_ahead": route})
+    obs = type(obs)(**{**obs.__dict__, "ground_truth": gt})
+    assert abs(expert.lateral_offset(obs, moved.x, moved.y) - offset) < 1e-6
+    half = 0.3
+    on_road = -expert.LANE_HALF_WIDTH - expert.KERB_CAUTION <= offset + half and \
+        offset - half <= expert.LANE_HALF_WIDTH + expert.OPPOSITE_LANE_WIDTH
+    assert expert.near_path(obs) == (kind == "pedestrian" and on_road)
 
 
 @settings(max_examples=60, deadline=None)
@@ -155,6 +180,13 @@ def test_cot_templates_cover_every_decision():
         slots = expert.slot_cot(observation(kind=kind, distance=10.0, blocking=True), decision, rng)
         assert set(slots) == {"scene", "objects", "decision"} and "stop" in slots["decision"]
         assert slots["objects"].startswith(kind.capitalize())
+    for kind in ("pedestrian", "animal"):  # yielding to a walker near the path never claims it blocks the lane
+        decision = expert.Decision("stop", "near_path", kind, 5.0)
+        for speed in (0.0, 5.0):
+            sentence = expert.sentence_cot(decision, speed, rng).lower()
+            assert kind in sentence and "blocking" not in sentence
+        slots = expert.slot_cot(observation(kind=kind, distance=10.0, offset=3.0), decision, rng)
+        assert "blocking" not in slots["objects"] + slots["decision"] and "stop" in slots["decision"]
 
 
 @settings(max_examples=60, deadline=None)

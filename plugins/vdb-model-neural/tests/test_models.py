@@ -61,7 +61,8 @@ def test_qa_selfsplice_is_bit_identical(qa, seed):
     assert set(own.slots) == {"scene", "objects", "decision"} and all(own.slots.values())
     spliced = qa.splice_cot(obs, own.slots, np.random.default_rng(0))
     assert qa.state_digest(spliced) == qa.state_digest(own)
-    assert np.array_equal(qa.decode_action(obs, own, None).xy, qa.decode_action(obs, spliced, None).xy)
+    a = qa.decode_action(obs, own, np.random.default_rng(7))
+    assert np.array_equal(a.xy, qa.decode_action(obs, spliced, np.random.default_rng(7)).xy)
 
 
 def test_prefill_splice_differs_only_by_rounding_and_the_gate_sees_it(kv):
@@ -196,5 +197,5 @@ def test_registration_is_light_and_options_are_checked():
     with isolated_registry(("neural", plugin)) as registry:
         with pytest.raises(ConfigError, match="splice_mode='fast' is not known"):
             registry.create("model", "kv", {"splice_mode": "fast"})
-        with pytest.raises(ConfigError, match="does not take option 'temperature'"):
-            registry.create("model", "qa", {"temperature": "1"})
+        with pytest.raises(ConfigError, match="does not take option 'beam_width'"):
+            registry.create("model", "qa", {"beam_width": 4})

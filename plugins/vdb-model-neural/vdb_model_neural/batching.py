@@ -80,18 +80,24 @@ class LockstepDecoder:
 
 
 def generate_lockstep(decoder: LockstepDecoder, start_id: int, end_id: int, max_tokens: int,
-                      banned: Sequence[int] = ()) -> list[list[int]]:
-    """Greedy text between markers for every row at once; each row stops at its own end marker.
+                      banned: Sequence[int] = (), sampler=None, rngs: Sequence | None = None) -> list[list[int]]:
+    """Text between markers for every row at once; each row stops at its own end marker.
 
-    Like :func:`toolkit.generate_between_markers` per row: the start marker, greedy tokens (``banned``
-    never picked), the end marker (fed anyway after ``max_tokens``). Returns each row's tokens.
+    Like :func:`toolkit.generate_between_markers` per row: the start marker, tokens (``banned`` never
+    picked), the end marker (fed anyway after ``max_tokens``). Greedy without a ``sampler``
+    (:class:`~vdb_model_neural.sampling.Sampler`); with one, row i's picks draw from ``rngs[i]`` exactly as
+    the row's episode draws alone (one draw per picked token). Returns each row's tokens.
     """
     decoder.feed([start_id] * decoder.rows)
     banned_ids = torch.tensor(sorted(set(banned) - {end_id}), dtype=torch.long, device=decoder.device)
     texts: list[list[int]] = [[] for _ in range(decoder.rows)]
     open_rows = [True] * decoder.rows
     while any(open_rows):
-        picks = _greedy(decoder.logits, banned_ids)
+        if sampler is None or sampler.greedy:
+            picks = _greedy(decoder.logits, banned_ids)
+        else:
+            picks = _sampled(decoder.logits, banned_ids.tolist(), sampler, rngs,
+                             [open_rows[i] and len(t) < max_tokens for i, t in enumerate(texts)])
         column: list[int | None] = []
         for i, text in enumerate(texts):
             if not open_rows[i]:
@@ -111,6 +117,12 @@ def splice_lockstep(decoder: LockstepDecoder, texts: Sequence[Sequence[int]], st
     rows = [[start_id, *map(int, t), end_id] for t in texts]
     for k in range(max(len(r) for r in rows)):
         decoder.feed([r[k] if k < len(r) else None for r in rows])
+
+
+def _sampled(logits: torch.Tensor, banned: list[int], sampler, rngs: Sequence, picking: list[bool]) -> list[int]:
+    """Each picking row's token from its own stream; the other rows draw nothing (-1: not used)."""
+    rows = logits.detach().to("cpu")
+    return [sampler.pick(rows[i], banned, rngs[i]) if pick else -1 for i, pick in enumerate(picking)]
 
 
 def _greedy(logits: torch.Tensor, banned: torch.Tensor) -> list[int]:

@@ -304,9 +304,17 @@ class BundledModel:
 
     device = "cpu"
 
+    default_sampling: tuple[float, float] = (0.0, 1.0)
+    """(temperature, top_p) of the CoT sampling when the options do not say."""
+
     def __init__(self, splice_mode: str = "sequential", weights_dir: str | None = None, threads: int = 1,
-                 device: str = "cpu"):
+                 device: str = "cpu", temperature: float | None = None, top_p: float | None = None):
         from vdb_adapter_transformers.toolkit import SPLICE_MODES
+
+        from .sampling import Sampler, TokenMemo
+
+        self.sampler = Sampler.checked(self.name, *self._sampling(temperature, top_p))
+        self.token_memo = TokenMemo()
 
         if splice_mode not in SPLICE_MODES:
             raise ConfigError(f"model {self.name!r} option splice_mode={splice_mode!r} is not known "
@@ -323,10 +331,20 @@ class BundledModel:
         self._setup(network.to(self.device).eval(), codec, splice_mode)
 
     @classmethod
-    def from_network(cls, network: nn.Module, codec: TextCodec, splice_mode: str = "sequential"):
+    def from_network(cls, network: nn.Module, codec: TextCodec, splice_mode: str = "sequential",
+                     temperature: float | None = None, top_p: float | None = None):
+        from .sampling import Sampler, TokenMemo
+
         model = cls.__new__(cls)
+        model.sampler = Sampler.checked(cls.name, *model._sampling(temperature, top_p))
+        model.token_memo = TokenMemo()
         model._setup(network.eval(), codec, splice_mode)
         return model
+
+    def _sampling(self, temperature: float | None, top_p: float | None) -> tuple[object, object]:
+        default_temperature, default_top_p = self.default_sampling
+        return (default_temperature if temperature is None else temperature,
+                default_top_p if top_p is None else top_p)
 
     def _setup(self, network: nn.Module, codec: TextCodec, splice_mode: str) -> None:
         raise NotImplementedError

@@ -38,6 +38,13 @@ TRAIN_FAMILIES = ("pedestrian", "stopped_car", "traffic_light", "stop_sign", "ba
 FAMILY_WEIGHTS = {"traffic_light": 2, "stopped_car": 3}
 """How many times a family's scenarios enter the episode rotation: a lit lamp is one pixel and a blocking
 car the one obstacle the safety override must respect, so both get more episodes than their file count."""
+MOVING_WEIGHT = 2
+"""Scenarios with a walking pedestrian (crossing, along the lane) enter the rotation twice: when to yield to a
+walker near the path is learnt from the few metres where it matters."""
+WAIT_STEPS = 15
+WALKER_WAIT_STEPS = 45
+"""Steps an expert episode waits at a stop before it ends (longer with a walking pedestrian, who may walk up
+to the stopped ego and stand at its bumper: a model that creeps there hits it)."""
 SCENERIES = ("plain", "suburban", "urban")
 GREEN_BEYOND_SHARE = 0.3
 """Share of obstacle variants on a straight road that get a green light beyond the obstacle (as on the
@@ -242,7 +249,10 @@ def variant(scenario, rng: np.random.Generator):
     for actor in scenario.actors:
         changes = {"s": max(15.0, actor.s + float(rng.uniform(-15.0, 15.0)))}
         if actor.motion == "static" and actor.kind in ("pedestrian", "animal"):
-            changes["offset"] = float(rng.choice([actor.offset, rng.uniform(-1.2, 1.2), rng.uniform(1.8, 3.0)]))
+            # In the lane, in the opposite lane (near the path: the expert yields, as one frame cannot show
+            # whether it is about to cross), or on either sidewalk (passed).
+            changes["offset"] = float(rng.choice([actor.offset, rng.uniform(-1.2, 1.2), rng.uniform(1.8, 5.0),
+                                                  rng.uniform(-4.6, -3.2), rng.uniform(5.6, 7.5)]))
         if actor.motion == "static" and actor.kind == "car":
             # In the ego lane or in the next one, on either stopped-car road: "blocking" is then a matter of
             # where the car is in the image, not of which road or scenery it stands on.
@@ -286,7 +296,11 @@ def _training_scenarios() -> list:
     from vladrivebench.world import load_suite
 
     return [s for s in load_suite().values() if s.family in TRAIN_FAMILIES
-            for _ in range(FAMILY_WEIGHTS.get(s.family, 1))]
+            for _ in range(FAMILY_WEIGHTS.get(s.family, 1) * (MOVING_WEIGHT if _has_walker(s) else 1))]
+
+
+def _has_walker(scenario) -> bool:
+    return any(a.motion != "static" and a.kind in ("pedestrian", "animal") for a in scenario.actors)
 
 
 def _drive_all(jobs: list[tuple], workers: int) -> Iterable[list[dict]]:
@@ -319,7 +333,10 @@ def _drive_episode(job: tuple) -> list[dict]:
     offset = int(rng.integers(every))
     late = float(rng.uniform(2.0, 25.0)) if rng.random() < LATE_SHARE else None
     wander = bool(rng.random() < WANDER_SHARE)
-    expert = ExpertModel(rng, float(rng.uniform(5.5, 9.5)), kept.append, late_reaction=late, wander=wander)
+    # A walker comes up to a stopped ego (P.7's walks right up to its bumper): wait long enough to learn that.
+    wait = WALKER_WAIT_STEPS if _has_walker(scenario) else WAIT_STEPS
+    expert = ExpertModel(rng, float(rng.uniform(5.5, 9.5)), kept.append, max_wait_steps=wait, late_reaction=late,
+                         wander=wander)
     controller = build_component("controller", "mpc") if episode % 2 else build_component("controller", "pid")
     try:
         run_episode(expert, _SIMULATOR, controller, scenario, int(rng.integers(1 << 30)))

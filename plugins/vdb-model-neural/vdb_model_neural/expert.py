@@ -1,8 +1,10 @@
 """The expert driver that writes the training data: perfect perception (the simulator's ground truth),
 a rule-based decision, a planned 3 s rollout, and template CoTs with paraphrase variety in both formats.
 
-Decision rules: stop for a blocking pedestrian, car or animal within 40 m and for a red (or stoppable
-yellow) light within 100 m; stop at a stop sign, then proceed; otherwise cruise. The plan is a unicycle rollout at
+Decision rules: stop for a blocking pedestrian, car or animal within 40 m — and for a pedestrian or
+animal *near the path* (on the carriageway, or at the ego lane's kerb: :func:`near_path`), which one camera
+frame cannot tell from one that is about to step into the lane — and for a red (or stoppable yellow)
+light within 100 m; stop at a stop sign, then proceed; otherwise cruise. The plan is a unicycle rollout at
 10 Hz: the speed follows ``min(cruise, sqrt(2·b·distance-to-stop-point))``, the curvature comes from
 pure pursuit on the route centre line (``GroundTruth.route_ahead``).
 
@@ -44,6 +46,13 @@ pedestrian (~1 m²) only from ~10 m, when from cruise speed not even full brakin
 DENIAL_SHARE = 0.3
 ACCEL_BONUS = 0.5  # m/s above cruise when the CoT says "accelerate": what the expert says, it does
 OBSTACLE_KINDS = ("pedestrian", "car", "animal")
+WALKER_KINDS = ("pedestrian", "animal")
+LANE_HALF_WIDTH = 1.75  # m: the suite's 3.5 m lanes
+OPPOSITE_LANE_WIDTH = 3.5
+KERB_CAUTION = 1.0
+"""m beyond the ego lane's right edge within which a walker counts as near the path: a pedestrian about to
+step off the kerb looks, in one frame, like one standing there (the suite's crossing walkers stand 1.5 m
+beyond the edge, P.4's reaches this zone 0.2 s after it starts walking, 12 m ahead of a cruising ego)."""
 
 
 @dataclass(frozen=True)
@@ -75,8 +84,10 @@ class ExpertDriver:
             return Decision("go", "clear")
         kind = critical.kind
         if kind in OBSTACLE_KINDS:
-            if gt.blocking and -1.0 < distance <= REACT_DISTANCE:
+            if -1.0 < distance <= REACT_DISTANCE and gt.blocking:
                 return Decision("stop", "blocking", kind, distance - OBSTACLE_MARGIN)
+            if -1.0 < distance <= REACT_DISTANCE and near_path(obs):
+                return Decision("stop", "near_path", kind, distance - OBSTACLE_MARGIN)
             return Decision("go", "not_blocking" if distance > -1.0 else "passed", kind)
         if kind == "traffic_light":
             colour = gt.light_state or critical.state
@@ -166,6 +177,33 @@ def pursuit_curvature(route: np.ndarray, x: float, y: float, heading: float, loo
     return float(np.clip(2.0 * lateral / dist2, -0.3, 0.3))
 
 
+def lateral_offset(obs: Observation, x: float, y: float) -> float:
+    """Signed offset (m, left positive) of world point (x, y) from the lane centre, by the route ahead."""
+    forward, left = obs.ego.to_ego_frame(x, y)
+    route = np.asarray(obs.ground_truth.route_ahead, dtype=float) if obs.ground_truth.route_ahead else None
+    if route is None or len(route) < 2:
+        return left
+    route = np.vstack([[0.0, 0.0], route])
+    nearest = int(np.argmin(np.hypot(route[:, 0] - forward, route[:, 1] - left)))
+    a, b = route[max(nearest - 1, 0)], route[min(nearest + 1, len(route) - 1)]
+    tangent = (b - a) / max(float(np.hypot(*(b - a))), 1e-9)
+    rel = np.array([forward, left]) - route[nearest]
+    return float(tangent[0] * rel[1] - tangent[1] * rel[0])
+
+
+def near_path(obs: Observation) -> bool:
+    """Whether the critical walker (pedestrian, animal) is near the ego's path though not in its lane: on the
+    carriageway (the opposite lane) or within :data:`KERB_CAUTION` of the ego lane's right edge. One frame
+    does not show whether it is walking, so the expert yields to it as if it were about to cross."""
+    critical = obs.ground_truth.critical()
+    if critical is None or critical.kind not in WALKER_KINDS:
+        return False
+    offset = lateral_offset(obs, critical.x, critical.y)
+    half = 0.5 * max(critical.width, critical.length)
+    return (offset + half >= -LANE_HALF_WIDTH - KERB_CAUTION
+            and offset - half <= LANE_HALF_WIDTH + OPPOSITE_LANE_WIDTH)
+
+
 def salience(obs: Observation) -> float:
     """Apparent size of the critical road user in the camera: width · height / distance² (0 if none)."""
     gt = obs.ground_truth
@@ -231,6 +269,14 @@ STOP_SENTENCES = {
         "Slow down and stop because an animal is standing in the lane ahead.",
         "Brake to yield to the animal that is blocking the path.",
     ],
+    "pedestrian_near": [
+        "Slow down and stop to yield to the pedestrian near the lane ahead.",
+        "Brake because a pedestrian on the road ahead may cross into the path.",
+        "Stop and let the pedestrian ahead cross the road.",
+    ],
+    "animal_near": [
+        "Slow down and stop because an animal on the road ahead may cross into the path.",
+    ],
     "red_light": [
         "Stop for the red traffic light ahead because it requires the vehicle to stop.",
         "Slow down and stop at the intersection since the traffic light is red.",
@@ -254,6 +300,9 @@ WAIT_SENTENCES = {
     "car": ["Remain stopped behind the stationary car that is blocking the lane.",
             "Stay stopped because the car ahead is still blocking the lane."],
     "animal": ["Remain stopped because the animal is still blocking the lane."],
+    "pedestrian_near": ["Remain stopped and let the pedestrian cross the road.",
+                        "Stay stopped until the pedestrian near the lane has crossed."],
+    "animal_near": ["Remain stopped until the animal near the lane has crossed."],
     "red_light": ["Remain stopped at the red traffic light.", "Stay stopped while the traffic light is red."],
     "yellow_light": ["Remain stopped at the traffic light."],
     "stop_sign": ["Remain stopped at the stop sign."],
@@ -297,6 +346,8 @@ def pick(rng: np.random.Generator, options: list[str]) -> str:
 def stop_kind(decision: Decision) -> str:
     if decision.kind == "traffic_light":
         return "yellow_light" if decision.reason == "yellow" else "red_light"
+    if decision.reason == "near_path" and decision.kind in WALKER_KINDS:
+        return f"{decision.kind}_near"
     return decision.kind or "car"
 
 
@@ -343,7 +394,9 @@ def objects_answer(obs: Observation, decision: Decision, rng: np.random.Generato
     where = f"<{-left:.2f}, {forward:.2f}>"
     name = {"pedestrian": "Pedestrian", "car": "Car", "animal": "Animal", "traffic_light": "Traffic light",
             "stop_sign": "Stop sign"}.get(critical.kind, "Object")
-    if critical.kind in OBSTACLE_KINDS:
+    if critical.kind in OBSTACLE_KINDS and not gt.blocking and decision.action == "stop":
+        state = pick(rng, ["beside the lane, close to the path.", "near the lane ahead, about to enter the path."])
+    elif critical.kind in OBSTACLE_KINDS:
         state = (pick(rng, ["standing in the lane, blocking the path.", "in the lane ahead, blocking the path."])
                  if gt.blocking else pick(rng, ["outside the lane, not blocking the path.",
                                                 "beside the lane, not in the path."]))

@@ -19,7 +19,7 @@ from torch.nn import functional as F
 from vdb_adapter_transformers import toolkit
 from vladrivebench import ConfigError, CoT, CoTFormat, Observation, Trajectory, TrajectorySpec
 
-from . import batching
+from . import batching, sampling
 from .common import (
     BundledModel,
     ModelConfig,
@@ -148,9 +148,11 @@ class KVState:
 class KVModel(BundledModel):
     """The ``kv`` reference VLA (VLAModel and BatchedModel protocols). Options: ``splice_mode``
     (``sequential`` or ``prefill``), ``weights_dir`` (a folder with ``kv.safetensors`` & co.), ``threads``,
-    ``device`` (``cpu`` by default; e.g. ``cuda``)."""
+    ``device`` (``cpu`` by default; e.g. ``cuda``), ``temperature`` and ``top_p`` of its CoT sampling
+    (Alpamayo's defaults, 0.6 and 0.98; ``temperature=0`` is greedy)."""
 
     name = "kv"
+    default_sampling = (0.6, 0.98)
 
     network_class = KVNetwork
 
@@ -165,18 +167,26 @@ class KVModel(BundledModel):
 
     # -- protocol ------------------------------------------------------------------------------------
     def reset(self, seed: int) -> None:
+        """A new episode: forget the cached prefix and the tokens sampled in earlier episodes."""
         self._prefix_key, self._prefix = None, None
+        self.token_memo.clear()
 
     def generate_cot(self, obs: Observation, rng: np.random.Generator) -> CoT:
-        """Greedy CoT between ``<cot>`` and ``</cot>`` (``rng`` is not needed by greedy decoding)."""
+        """A CoT between ``<cot>`` and ``</cot>``, sampled with the model's temperature and top-p (one draw
+        from ``rng``, the pinned ``cot`` stream, per token; greedy at temperature 0)."""
         if self.device != "cpu":
             return self.generate_cot_batch([obs], [rng])[0]
         ids = self.codec.ids
-        tokens, state = toolkit.generate_between_markers(
+        tokens, state = sampling.generate_between_markers(
             self.network.lm, self.prefix_state(obs), ids["<cot>"], ids["</cot>"], self.config.max_cot_tokens,
-            banned=self.codec.special_ids,
-        )
-        return CoT(text=self.codec.decode(tokens), state=KVState(state, tuple(tokens)))
+            self.codec.special_ids, self.sampler, rng)
+        return CoT(text=self._remember(tokens), state=KVState(state, tuple(tokens)))
+
+    def _remember(self, tokens: list[int]) -> str:
+        """The text of sampled ``tokens``; a splice of that text will feed these very tokens."""
+        text = self.codec.decode(tokens)
+        self.token_memo.remember(text, tokens, self.codec.encode(text))
+        return text
 
     def splice_cot(self, obs: Observation, text: str | dict[str, str], rng: np.random.Generator) -> CoT:
         """Re-encode ``text`` into the cache between the markers (sequential or prefill mode)."""
@@ -185,7 +195,7 @@ class KVModel(BundledModel):
         if not isinstance(text, str):
             raise ConfigError(f"model 'kv' writes one sentence; a splice needs one text, got slots "
                               f"{', '.join(text)}")
-        tokens = self.codec.encode(text)
+        tokens = self.token_memo.tokens(text, self.codec.encode)
         ids = self.codec.ids
         state = toolkit.splice_tokens(self.network.lm, self.prefix_state(obs), tokens, ids["<cot>"],
                                       ids["</cot>"], mode=self.splice_mode, what="model 'kv' splice text")
@@ -193,12 +203,13 @@ class KVModel(BundledModel):
 
     # -- lockstep batches (BatchedModel) --------------------------------------------------------------
     def generate_cot_batch(self, observations: list[Observation], rngs: list[np.random.Generator]) -> list[CoT]:
-        """Greedy CoTs for B observations: one vision-prefix pass and one decoder pass per token for all."""
+        """Sampled CoTs for B observations, row i drawing from ``rngs[i]`` as it would alone: one
+        vision-prefix pass and one decoder pass per token for all."""
         ids = self.codec.ids
         decoder = self._lockstep_prefix(observations)
         texts = batching.generate_lockstep(decoder, ids["<cot>"], ids["</cot>"], self.config.max_cot_tokens,
-                                           banned=self.codec.special_ids)
-        return [CoT(text=self.codec.decode(t), state=KVState(decoder.row_state(i, t), tuple(t)))
+                                           banned=self.codec.special_ids, sampler=self.sampler, rngs=rngs)
+        return [CoT(text=self._remember(t), state=KVState(decoder.row_state(i, t), tuple(t)))
                 for i, t in enumerate(texts)]
 
     def splice_cot_batch(self, observations: list[Observation], texts: list[str],
@@ -210,7 +221,7 @@ class KVModel(BundledModel):
             if not isinstance(text, str):
                 raise ConfigError(f"model 'kv' writes one sentence; a splice needs one text, got slots "
                                   f"{', '.join(text)}")
-            token_lists.append(self.codec.encode(text))
+            token_lists.append(self.token_memo.tokens(text, self.codec.encode))
         decoder = self._lockstep_prefix(observations)
         batching.splice_lockstep(decoder, token_lists, ids["<cot>"], ids["</cot>"])
         return [CoT(text=text, state=KVState(decoder.row_state(i, t), tuple(t)), spliced=True)
@@ -253,7 +264,7 @@ class KVModel(BundledModel):
     # -- extras --------------------------------------------------------------------------------------
     def count_tokens(self, text: str) -> int:
         """How many tokens ``text`` takes (the condition library matches repeat counts with it)."""
-        return len(self.codec.encode(text))
+        return len(self.token_memo.tokens(text, self.codec.encode))
 
     def noise(self, rng: np.random.Generator, batch: int) -> torch.Tensor:
         """The flow's starting noise, one draw repeated over ``batch`` rows (same noise for every condition)."""
@@ -267,7 +278,8 @@ class KVModel(BundledModel):
         Every text gets the same pinned noise; results equal one-by-one prefill splices up to rounding.
         """
         ids = self.codec.ids
-        batch = toolkit.splice_batch(self.network.lm, self.prefix_state(obs), [self.codec.encode(t) for t in texts],
+        batch = toolkit.splice_batch(self.network.lm, self.prefix_state(obs),
+                                     [self.token_memo.tokens(t, self.codec.encode) for t in texts],
                                      ids["<cot>"], ids["</cot>"], ids["<pad>"], mode="prefill")
         noise = self.noise(rng, len(texts))
         controls = self.network.sample_controls(batch.keys_values(), batch.key_mask, noise).numpy()

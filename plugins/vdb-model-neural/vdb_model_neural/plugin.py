@@ -9,19 +9,24 @@ import vladrivebench
 
 
 def make_kv(splice_mode: str = "sequential", weights_dir: str | None = None, threads: int = 1,
-            device: str = "cpu"):
-    """The Alpamayo-like ``kv`` model (options: splice_mode=sequential|prefill, weights_dir, threads, device)."""
+            device: str = "cpu", temperature: float = 0.6, top_p: float = 0.98):
+    """The Alpamayo-like ``kv`` model (options: splice_mode=sequential|prefill, weights_dir, threads, device,
+    temperature and top_p of its CoT sampling: Alpamayo's 0.6 and 0.98; temperature=0 is greedy)."""
     from .kv_model import KVModel
 
-    return KVModel(splice_mode=splice_mode, weights_dir=weights_dir, threads=threads, device=device)
+    return KVModel(splice_mode=splice_mode, weights_dir=weights_dir, threads=threads, device=device,
+                   temperature=temperature, top_p=top_p)
 
 
 def make_qa(splice_mode: str = "sequential", weights_dir: str | None = None, threads: int = 1,
-            device: str = "cpu"):
-    """The ORION-like ``qa`` model (options: splice_mode=sequential|prefill, weights_dir, threads, device)."""
+            device: str = "cpu", temperature: float = 0.1, top_p: float = 0.75, plan_noise: float = 1.0):
+    """The ORION-like ``qa`` model (options: splice_mode=sequential|prefill, weights_dir, threads, device,
+    temperature and top_p of its answer sampling: ORION's 0.1 and 0.75, temperature=0 is greedy; plan_noise:
+    the scale of its planner's learnt deviation, 0 plans the mean)."""
     from .qa_model import QAModel
 
-    return QAModel(splice_mode=splice_mode, weights_dir=weights_dir, threads=threads, device=device)
+    return QAModel(splice_mode=splice_mode, weights_dir=weights_dir, threads=threads, device=device,
+                   temperature=temperature, top_p=top_p, plan_noise=plan_noise)
 
 
 @vladrivebench.hookimpl

@@ -7,7 +7,8 @@
    * ``kv``: next-token loss on the expert's sentence + flow-matching loss on the expert's controls, and on a
      share of rows the sentence is replaced by a *counterfactual* (opposite decision) whose target follows
      it (no next-token loss there) — so the action depends on the CoT (Alpamayo-like coupling);
-   * ``qa``: next-token loss on the three answers + planner loss on the expert's controls, and on a share of rows
+   * ``qa``: next-token loss on the three answers + planner loss on the expert's controls (smooth L1 on the
+     planner's mean, Gaussian likelihood for its deviation), and on a share of rows
      the answers are swapped with another sample's (coherent but wrong) while the planner target stays the
      true one — so the planner relies on vision and not on what the CoT says (ORION-like).
 4. Weights (safetensors), config and tokenizer are written to ``weights/`` (or ``--out``).
@@ -26,7 +27,8 @@ import click
 DEFAULTS = {
     "kv": {"steps": 3600, "batch": 48, "lr": 2e-3, "counterfactual_share": 0.4, "veto_share": 0.8,
            "veto_weight": 3.0, "vocab": 640},
-    "qa": {"steps": 2700, "batch": 24, "lr": 2e-3, "mismatch_share": 0.5, "plan_weight": 5.0, "vocab": 768},
+    "qa": {"steps": 2700, "batch": 24, "lr": 2e-3, "mismatch_share": 0.5, "plan_weight": 5.0, "nll_weight": 0.2,
+           "vocab": 768},
 }
 
 
@@ -169,12 +171,17 @@ def train_qa(dataset, seed: int, steps: int | None = None, threads: int = 2, log
         lm_loss = F.cross_entropy(logits[lm_mask], token_ids[lm_mask])
         plan_pos = p + real.sum(dim=1) - 1
         hidden = out.hidden_states[-1][torch.arange(len(rows)), plan_pos]
-        plan_loss = F.smooth_l1_loss(network.plan(hidden, prefix), targets[rows])
+        mean, log_std = network.plan_distribution(hidden, prefix)
+        plan_loss = F.smooth_l1_loss(mean, targets[rows])
+        # The deviation is learnt by likelihood around the (detached) mean: how far the expert's controls
+        # scatter for what the model sees; the mean's own fit stays the smooth-L1 one.
+        nll_loss = F.gaussian_nll_loss(mean.detach(), targets[rows], torch.exp(2.0 * log_std), eps=1e-8)
         aux_loss = _perception_loss(probe, prefix, perception[rows])
-        loss = lm_loss + settings["plan_weight"] * plan_loss + aux_loss
+        loss = lm_loss + settings["plan_weight"] * plan_loss + settings["nll_weight"] * nll_loss + aux_loss
         _update(optimiser, params, loss, _schedule(step, settings["steps"], settings["lr"]))
         if step % 200 == 0 or step == settings["steps"] - 1:
             log(f"  qa step {step:5d}  lm {lm_loss.item():.3f}  plan {plan_loss.item():.3f}  "
+                f"nll {nll_loss.item():.3f}  "
                 f"perception {aux_loss.item():.3f}  "
                 f"{time.perf_counter() - started:.0f} s")
     return network.eval(), codec, config
@@ -308,10 +315,20 @@ def run(models: list[str], seed: int, episodes: int, steps: int | None, out: Pat
     return times
 
 
+def _passive_threads() -> None:
+    """Let torch's OpenMP threads sleep rather than spin while they wait for each other (unless the
+    environment says otherwise; read when torch first loads). On a machine shared with other jobs a
+    spinning thread burns the time slice its partner needs: training ran ~15× slower so. The results are
+    the same either way (same threads, same work split)."""
+    import os
+
+    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
+
 @click.command("train-neural")
 @click.option("--model", "model", type=click.Choice(["kv", "qa", "both"]), default="both", show_default=True)
 @click.option("--seed", type=int, default=0, show_default=True)
-@click.option("--episodes", type=click.IntRange(1), default=360, show_default=True,
+@click.option("--episodes", type=click.IntRange(1), default=420, show_default=True,
               help="Expert episodes of randomised scenario variants to learn from.")
 @click.option("--steps", type=click.IntRange(1), default=None, help="Optimiser steps (default per model).")
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
@@ -323,6 +340,7 @@ def run(models: list[str], seed: int, episodes: int, steps: int | None, out: Pat
 def train_command(model: str, seed: int, episodes: int, steps: int | None, out: Path | None, threads: int,
                   data_cache: Path | None) -> None:
     """Rebuild the neural reference models' weights from a seed (expert data → tokenizer → training)."""
+    _passive_threads()
     models = ["kv", "qa"] if model == "both" else [model]
     times = run(models, seed, episodes, steps, out, threads, data_cache)
     click.echo("wall time: " + ", ".join(f"{k} {v:.0f} s" for k, v in times.items()))
