@@ -1,6 +1,6 @@
 """Regenerate the README's salience result with one ``vdb`` command (nothing is typed by hand).
 
-    python -m vdb_paradigm_salience.results --out DIR [--seeds 10] [--model kv] [--controller mpc]
+    python -m vdb_paradigm_salience.results --out DIR [--seeds 10] [--model kv] [--controller mpc] [--batch 16]
                                                       [--readme PATH | --print]
 
 Runs (or resumes: complete episodes are kept) the command printed in the block, then writes between
@@ -33,13 +33,13 @@ from 25 m, from 50 m (where SAFE.* starts cruising) and from the start (70 m: th
 injection, as ``--mode safety``)."""
 
 
-def command(out: Path, seeds: int, model: str, controller: str) -> list[str]:
-    """The ``vdb`` arguments of the README's sweep."""
+def command(out: Path, seeds: int, model: str, controller: str, batch: int = 16) -> list[str]:
+    """The ``vdb`` arguments of the README's sweep (episodes in lockstep batches of ``batch``)."""
     args = ["intervene", "--model", model, "--controller", controller, "--mode", "salience", "--route",
             "SAFE.kerb-ped"]
     for item in GRID:
         args += ["--paradigm-opt", item]
-    return args + ["--seeds", str(seeds), "--out", str(out / SECTION)]
+    return args + ["--seeds", str(seeds), "--batch", str(batch), "--out", str(out / SECTION)]
 
 
 def pooled(cells: list[Mapping[str, Any]], kind: str, offset: float | None = None) -> dict[str, Any]:
@@ -129,12 +129,15 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--seeds", type=int, default=10)
     parser.add_argument("--model", default="kv")
     parser.add_argument("--controller", default="mpc")
+    parser.add_argument("--batch", type=int, default=16, help="episodes per lockstep batch (1 = unbatched)")
     parser.add_argument("--readme", type=Path, default=README)
     parser.add_argument("--print", action="store_true", help="print the block instead of writing the README")
     opts = parser.parse_args(argv)
     if opts.seeds < 1:
         parser.error("--seeds must be a whole number ≥ 1")
-    args = command(opts.out, opts.seeds, opts.model, opts.controller)
+    if opts.batch < 1:
+        parser.error(f"--batch must be a positive integer, got {opts.batch}")
+    args = command(opts.out, opts.seeds, opts.model, opts.controller, opts.batch)
     print("$ vdb " + shlex.join(args), file=sys.stderr)
     stdout = run_vdb(args)
     results = json.loads((opts.out / SECTION / "intervention.json").read_text(encoding="utf-8"))
