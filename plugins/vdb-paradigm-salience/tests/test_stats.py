@@ -100,3 +100,16 @@ def test_a_50_percent_point_outside_the_observed_salience_is_not_identifiable_bu
     fit = logistic_threshold([(3.0, 2, 10), (4.0, 1, 10), (8.0, 0, 10)])
     assert not fit["identifiable"] and fit["extrapolated"] and "lies outside the salience observed" in fit["reason"]
     assert fitted_rate(fit, 4.0) == pytest.approx(1 / (1 + math.exp(-(fit["intercept"] + fit["slope"] * math.log(4)))))
+
+
+def _steps(speeds):
+    from types import SimpleNamespace
+    return [SimpleNamespace(step=i, ego=SimpleNamespace(speed=v), ground_truth=SimpleNamespace(distance_to_critical=5.0))
+            for i, v in enumerate(speeds)]
+
+
+def test_pulling_away_from_rest_at_onset_is_not_a_stop():
+    from vdb_paradigm_salience.paradigm import stopped_after
+    assert not stopped_after(_steps([0.0, 0.1, 0.25, 2.0, 5.0, 0.9]), 0)
+    assert stopped_after(_steps([0.0, 0.1, 2.0, 5.0, 0.2]), 0)
+    assert not stopped_after(_steps([0.0, 2.0, 0.2, 5.0, 6.0]), 3)  # the stop came before onset
