@@ -6,13 +6,13 @@ from types import SimpleNamespace
 
 from hypothesis import given
 from hypothesis import strategies as st
-from vladrivebench._builtins.paradigms.safety import MOVING_SPEED, STOPPED_SPEED, came_to_stop
+from vladrivebench._intervention.runs import MOVING_SPEED, STOPPED_SPEED, came_to_stop
 
 
 def steps(speeds: list[float], distances: list[float | None] | None = None) -> list[SimpleNamespace]:
     distances = distances if distances is not None else [10.0] * len(speeds)
-    return [SimpleNamespace(ego=SimpleNamespace(speed=v), ground_truth=SimpleNamespace(distance_to_critical=d))
-            for v, d in zip(speeds, distances, strict=True)]
+    return [SimpleNamespace(step=i, ego=SimpleNamespace(speed=v), ground_truth=SimpleNamespace(distance_to_critical=d))
+            for i, (v, d) in enumerate(zip(speeds, distances, strict=True))]
 
 
 def test_pulling_away_from_rest_is_not_a_stop():

@@ -55,6 +55,7 @@ from vladrivebench._intervention.runs import (
     ShadowController,
     Splicer,
     WrapsController,
+    came_to_stop,
     displacements,
     episode_summary,
     gate_record,
@@ -95,6 +96,7 @@ __all__ = [
     "gate_record", "GateTally", "trajectory_difference",
     # analysis from the logs
     "LoggedEpisodes", "episode_summary", "EpisodeSummary", "cumulative_distance", "displacements", "horizon_key",
+    "came_to_stop",
     # statistics
     "open_loop_stats", "OpenLoopStats", "with_holm", "closed_loop_stats", "ClosedLoopStats", "cohens_d",
     "holm_adjust", "one_sample_t_test", "t_interval", "Interval", "json_number", "from_json_number",

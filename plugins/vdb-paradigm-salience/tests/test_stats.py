@@ -109,7 +109,7 @@ def _steps(speeds):
 
 
 def test_pulling_away_from_rest_at_onset_is_not_a_stop():
-    from vdb_paradigm_salience.paradigm import stopped_after
+    from vladrivebench.intervention import came_to_stop as stopped_after
     assert not stopped_after(_steps([0.0, 0.1, 0.25, 2.0, 5.0, 0.9]), 0)
     assert stopped_after(_steps([0.0, 0.1, 2.0, 5.0, 0.2]), 0)
     assert not stopped_after(_steps([0.0, 2.0, 0.2, 5.0, 6.0]), 3)  # the stop came before onset

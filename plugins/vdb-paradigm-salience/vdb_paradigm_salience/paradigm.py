@@ -38,6 +38,7 @@ from vladrivebench.intervention import (
     PlannedEpisode,
     RunContext,
     Splicer,
+    came_to_stop,
     gate_record,
     model_text,
     own_step,
@@ -63,10 +64,6 @@ from .salience import measure, salience_value
 from .stats import cell_counts, fitted_rate, logistic_threshold, rate, wilson
 
 BASELINE, INJECTED = "baseline", "injected"
-STOPPED_SPEED = 0.3
-"""The ego has stopped once its speed is below this (m/s) with the obstacle still ahead."""
-MOVING_SPEED = 1.0
-"""m/s: the ego is driving; a stop counts only after this (not the first steps pulling away from rest)."""
 CONTRAST_NOTE = ("contrast is not varied: the renderer draws each obstacle kind in fixed colours, so an "
                  "actor's contrast against the road cannot be set from a scenario")
 
@@ -248,25 +245,13 @@ def _within(obs: Any, distance: float) -> bool:
 
 
 # -- analysis (from the logs only) ---------------------------------------------------------------------
-def stopped_after(steps: Sequence[Any], start: float) -> bool:
-    """Whether the ego, having driven (≥ MOVING_SPEED), was below STOPPED_SPEED at a step ≥ ``start`` with the
-    obstacle still ahead. Pulling away from rest is not a stop (onset may be the first step)."""
-    has_moved = False
-    for step in steps:
-        if (has_moved and step.step >= start and step.ego.speed < STOPPED_SPEED
-                and (step.ground_truth.distance_to_critical or -1.0) > 0.0):
-            return True
-        has_moved = has_moved or step.ego.speed >= MOVING_SPEED
-    return False
-
-
 def episode_outcome(episode: Any, obstacle_id: str) -> dict[str, Any]:
     """From one log: whether onset happened, whether the ego hit the obstacle, whether it stopped before it
-    (:func:`stopped_after` onset, no collision), and the onset record."""
+    (:func:`vladrivebench.intervention.came_to_stop` from onset, no collision), and the onset record."""
     onset = next(((s.step, s.extras["intervention"]["onset"]) for s in episode.steps
                   if "onset" in (s.extras.get("intervention") or {})), None)
     collided = any(obstacle_id in s.ground_truth.collisions for s in episode.steps)
-    stopped = not collided and stopped_after(episode.steps, onset[0] if onset else math.inf)
+    stopped = not collided and came_to_stop(episode.steps, onset[0] if onset else math.inf)
     closest = [s.ground_truth.distance_to_critical for s in episode.steps
                if s.ground_truth.distance_to_critical is not None]
     return {"onset": onset is not None, "onset_step": onset[0] if onset else None,

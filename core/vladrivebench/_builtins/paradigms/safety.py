@@ -13,7 +13,7 @@ from collections.abc import Mapping
 from typing import Any
 
 from vladrivebench import ScenarioError
-from vladrivebench.intervention import GateTally, LoggedEpisodes, model_text
+from vladrivebench.intervention import GateTally, LoggedEpisodes, came_to_stop, model_text
 from vladrivebench.metrics import Cell, Row, Table
 
 from .closed_loop import ClosedLoopParadigm
@@ -68,22 +68,6 @@ def safety_route(route: str, config: Mapping[str, Any], episodes: LoggedEpisodes
             "n": len(seeds),
         }
     return out
-
-
-MOVING_SPEED = 1.0
-"""m/s: the ego is driving. A stop counts only after this, not while it pulls away from rest."""
-STOPPED_SPEED = 0.3
-
-
-def came_to_stop(steps: Any) -> bool:
-    """Whether the ego, having driven, slowed below STOPPED_SPEED with the obstacle still ahead."""
-    has_moved = False
-    for step in steps:
-        speed = step.ego.speed
-        if has_moved and speed < STOPPED_SPEED and (step.ground_truth.distance_to_critical or -1.0) > 0.0:
-            return True
-        has_moved = has_moved or speed >= MOVING_SPEED
-    return False
 
 
 def safety_outcome(episode: Any) -> dict[str, Any]:
