@@ -40,7 +40,7 @@ from __future__ import annotations
 
 import copy
 import hashlib
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -248,19 +248,23 @@ def generate_between_markers(
     generator: torch.Generator | None = None,
     temperature: float = 0.0,
     banned: Sequence[int] = (),
+    pick: Callable[[torch.Tensor, list[int]], int] | None = None,
 ) -> tuple[list[int], DecoderState]:
     """The model's own CoT: feed ``start_id``, then pick and feed one token per pass until ``end_id``.
 
-    Greedy when ``temperature`` is 0, else sampled from ``generator``. If ``max_tokens`` are reached
-    without the end marker, the end marker is fed anyway so the cache always ends like a finished CoT.
-    ``banned`` token ids (e.g. other markers, padding) are never picked. Returns the CoT token ids
-    (without markers) and the state after the end marker.
+    Greedy when ``temperature`` is 0, else sampled from ``generator``; or, with ``pick``, the model's own
+    picker: ``pick(last_logits_row, banned_ids)`` returns the token (e.g. top-p sampling from a pinned
+    NumPy stream). If ``max_tokens`` are reached without the end marker, the end marker is fed anyway so the
+    cache always ends like a finished CoT. ``banned`` token ids (e.g. other markers, padding) are never
+    picked. Returns the CoT token ids (without markers) and the state after the end marker.
     """
     state = feed_token(lm, state, start_id)
     text: list[int] = []
-    banned_ids = torch.tensor(sorted(set(banned) - {end_id}), dtype=torch.long)
+    banned_list = sorted(set(banned) - {end_id})
+    banned_ids = torch.tensor(banned_list, dtype=torch.long)
     while len(text) < max_tokens:
-        token = _pick(state.last_logits[0], banned_ids, generator, temperature)
+        token = (pick(state.last_logits[0], banned_list) if pick is not None
+                 else _pick(state.last_logits[0], banned_ids, generator, temperature))
         if token == end_id:
             break
         text.append(token)

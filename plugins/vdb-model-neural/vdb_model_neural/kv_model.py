@@ -19,7 +19,7 @@ from torch.nn import functional as F
 from vdb_adapter_transformers import toolkit
 from vladrivebench import ConfigError, CoT, CoTFormat, Observation, Trajectory, TrajectorySpec
 
-from . import batching, sampling
+from . import batching
 from .common import (
     BundledModel,
     ModelConfig,
@@ -177,9 +177,9 @@ class KVModel(BundledModel):
         if self.device != "cpu":
             return self.generate_cot_batch([obs], [rng])[0]
         ids = self.codec.ids
-        tokens, state = sampling.generate_between_markers(
+        tokens, state = toolkit.generate_between_markers(
             self.network.lm, self.prefix_state(obs), ids["<cot>"], ids["</cot>"], self.config.max_cot_tokens,
-            self.codec.special_ids, self.sampler, rng)
+            banned=self.codec.special_ids, pick=self.sampler.picker(rng))
         return CoT(text=self._remember(tokens), state=KVState(state, tuple(tokens)))
 
     def _remember(self, tokens: list[int]) -> str:

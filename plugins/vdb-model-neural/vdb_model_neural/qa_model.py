@@ -33,7 +33,7 @@ from torch import nn
 from vdb_adapter_transformers import toolkit
 from vladrivebench import ConfigError, CoT, CoTFormat, Observation, Trajectory, TrajectorySpec
 
-from . import batching, sampling
+from . import batching
 from .common import (
     BundledModel,
     ModelConfig,
@@ -148,11 +148,12 @@ class QAModel(BundledModel):
         ids, lm = self.codec.ids, self.network.lm
         state = self.prefix_state(obs)
         slots, token_ids = {}, {}
+        pick = self.sampler.picker(rng)
         for slot in SLOTS:
             state = toolkit.feed_tokens(lm, state, self.questions[slot], mode="prefill")
-            tokens, state = sampling.generate_between_markers(lm, state, ids["<a>"], ids["</a>"],
-                                                              self.config.max_cot_tokens, self.codec.special_ids,
-                                                              self.sampler, rng)
+            tokens, state = toolkit.generate_between_markers(lm, state, ids["<a>"], ids["</a>"],
+                                                             self.config.max_cot_tokens,
+                                                             banned=self.codec.special_ids, pick=pick)
             slots[slot], token_ids[slot] = self._remember(tokens), tuple(tokens)
         state = toolkit.feed_token(lm, state, ids["<plan>"])
         return CoT(text=CoT.join_slots(slots), slots=slots, state=QAState(state, token_ids, self._vision))

@@ -43,6 +43,10 @@ class Sampler:
     def greedy(self) -> bool:
         return self.temperature == 0.0
 
+    def picker(self, rng: np.random.Generator):
+        """A ``pick`` for :func:`toolkit.generate_between_markers`: each token drawn from ``rng``."""
+        return lambda logits, banned: self.pick(logits, banned, rng)
+
     def pick(self, logits, banned: Sequence[int], rng: np.random.Generator) -> int:
         """One token from a row of logits (a 1-D tensor or array); ``banned`` ids are never picked."""
         values = np.asarray(_to_numpy(logits), dtype=np.float64).copy()
@@ -105,22 +109,3 @@ def _number(model: str, name: str, value: object, low: float, high: float, expec
     if not ok:
         raise ConfigError(f"model {model!r} option {name} must be a number {expected}, got {value!r}")
     return float(value)
-
-
-def generate_between_markers(lm, state, start_id: int, end_id: int, max_tokens: int, banned: Sequence[int],
-                             sampler: Sampler, rng: np.random.Generator):
-    """The toolkit's ``generate_between_markers`` with :meth:`Sampler.pick` (one draw per picked token
-    from ``rng``): feed ``start_id``, pick and feed tokens until ``end_id`` or ``max_tokens``, feed
-    ``end_id``. Returns the tokens (without markers) and the state after the end marker."""
-    from vdb_adapter_transformers import toolkit
-
-    state = toolkit.feed_token(lm, state, start_id)
-    banned_ids = sorted(set(banned) - {end_id})
-    text: list[int] = []
-    while len(text) < max_tokens:
-        token = sampler.pick(state.last_logits[0], banned_ids, rng)
-        if token == end_id:
-            break
-        text.append(token)
-        state = toolkit.feed_token(lm, state, token)
-    return text, toolkit.feed_token(lm, state, end_id)
