@@ -65,6 +65,27 @@ def test_a_sampled_token_is_in_the_nucleus_never_banned_and_reproducible(logits,
     assert above < top_p + 1e-9
 
 
+@settings(max_examples=60, deadline=None)
+@given(rows=st.integers(1, 6).flatmap(lambda n: st.lists(st.lists(st.floats(-20, 20), min_size=8, max_size=8),
+                                                         min_size=n, max_size=n)),
+       temperature=st.sampled_from([0.0, 0.1, 0.6, 1.5]), top_p=st.floats(0.01, 1.0),
+       seeds=st.lists(st.integers(0, 10_000), min_size=6, max_size=6), skip=st.sets(st.integers(0, 5)))
+def test_a_batch_of_rows_picks_what_each_row_picks_alone(rows, temperature, top_p, seeds, skip):
+    sampler, banned = Sampler(temperature, top_p), [3]
+    streams = [None if i in skip else np.random.default_rng(seeds[i]) for i in range(len(rows))]
+    picks = sampler.pick_rows(torch.tensor(rows), banned, streams)
+    alone = [-1 if i in skip else sampler.pick(torch.tensor(row), banned, np.random.default_rng(seeds[i]))
+             for i, row in enumerate(rows)]
+    assert picks == alone
+    # one draw per picking row: each stream's next number is its second
+    for i, stream in enumerate(streams):
+        if stream is not None:
+            expected = np.random.default_rng(seeds[i])
+            draws = 0 if temperature == 0.0 else 1
+            [expected.random() for _ in range(draws)]
+            assert stream.random() == expected.random()
+
+
 @settings(max_examples=40, deadline=None)
 @given(logits=st.lists(st.floats(-20, 20), min_size=2, max_size=30), seed=st.integers(0, 10_000))
 def test_temperature_zero_is_greedy_and_draws_nothing(logits, seed):

@@ -121,8 +121,7 @@ def splice_lockstep(decoder: LockstepDecoder, texts: Sequence[Sequence[int]], st
 
 def _sampled(logits: torch.Tensor, banned: list[int], sampler, rngs: Sequence, picking: list[bool]) -> list[int]:
     """Each picking row's token from its own stream; the other rows draw nothing (-1: not used)."""
-    rows = logits.detach().to("cpu")
-    return [sampler.pick(rows[i], banned, rngs[i]) if pick else -1 for i, pick in enumerate(picking)]
+    return sampler.pick_rows(logits, banned, [rng if pick else None for rng, pick in zip(rngs, picking, strict=True)])
 
 
 def _greedy(logits: torch.Tensor, banned: torch.Tensor) -> list[int]:

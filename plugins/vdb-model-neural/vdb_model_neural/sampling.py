@@ -49,21 +49,34 @@ class Sampler:
 
     def pick(self, logits, banned: Sequence[int], rng: np.random.Generator) -> int:
         """One token from a row of logits (a 1-D tensor or array); ``banned`` ids are never picked."""
-        values = np.asarray(_to_numpy(logits), dtype=np.float64).copy()
-        if len(banned):
-            values[np.asarray(banned, dtype=np.int64)] = -np.inf
+        values = np.asarray(_to_numpy(logits), dtype=np.float64)[None]
         if self.greedy:
-            return int(np.argmax(values))
-        scaled = (values - values.max()) / self.temperature
-        probs = np.exp(scaled)
-        probs /= probs.sum()
-        order = np.lexsort((np.arange(len(probs)), -probs))  # most probable first, ties by id
-        mass = np.cumsum(probs[order])
-        keep = int(np.searchsorted(mass, self.top_p * mass[-1], side="left")) + 1
-        kept = order[:keep]
-        cumulative = np.cumsum(probs[kept])
-        index = int(np.searchsorted(cumulative, rng.random() * cumulative[-1], side="right"))
-        return int(kept[min(index, keep - 1)])
+            return self.pick_rows(values, banned, [True])[0]  # draws nothing: any non-None stands in
+        return self.pick_rows(values, banned, [rng])[0]
+
+    def pick_rows(self, logits, banned: Sequence[int], rngs: Sequence[np.random.Generator | None]) -> list[int]:
+        """One token per row of ``(B, V)`` logits, row i drawing once from ``rngs[i]``; a row whose stream is
+        ``None`` draws nothing and gets -1. Row i's pick is what :meth:`pick` gives for that row alone
+        (every reduction runs along the row, so the batch never changes a row's arithmetic)."""
+        values = np.array(_to_numpy(logits), dtype=np.float64, ndmin=2)
+        if len(banned):
+            values[:, np.asarray(banned, dtype=np.int64)] = -np.inf
+        if self.greedy:
+            return [int(t) if rng is not None else -1 for t, rng in zip(np.argmax(values, axis=1), rngs, strict=True)]
+        probs = np.exp((values - values.max(axis=1, keepdims=True)) / self.temperature)
+        probs /= probs.sum(axis=1, keepdims=True)
+        order = np.argsort(-probs, axis=1, kind="stable")  # most probable first, ties by id
+        mass = np.cumsum(np.take_along_axis(probs, order, axis=1), axis=1)
+        keep = np.count_nonzero(mass < (self.top_p * mass[:, -1])[:, None], axis=1) + 1
+        picks = []
+        for row, rng in enumerate(rngs):
+            if rng is None:
+                picks.append(-1)
+                continue
+            kept = mass[row, : keep[row]]
+            index = int(np.count_nonzero(kept <= rng.random() * kept[-1]))
+            picks.append(int(order[row, min(index, keep[row] - 1)]))
+        return picks
 
 
 class TokenMemo:
