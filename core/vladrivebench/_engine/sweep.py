@@ -652,14 +652,21 @@ def make_jobs(config: RunConfig, out: Path, versions: Mapping[str, str],
 
 
 # -- the output directory -----------------------------------------------------------------------------
-def prepare_out(out: Path, manifest: Mapping[str, Any]) -> None:
-    """Check ``out`` can hold this run (resume or new) and write the manifest if it is new."""
+def prepare_out(out: Path, manifest: Mapping[str, Any], *, optional: Iterable[str] = ()) -> None:
+    """Check ``out`` can hold this run (resume or new) and write the manifest if it is new.
+
+    ``optional`` names ``config`` keys that manifests written before they were recorded lack: a recorded
+    manifest without one is accepted (unknown, as before) and left as it is; one with it must match."""
     check_output_directory(out)
     path = out / MANIFEST_NAME
     if path.exists():
         previous = read_manifest(path)
+        now = {"config": _plain(manifest["config"]), "versions": _plain(manifest["versions"])}
+        for key in optional:
+            if key not in previous["config"]:
+                now["config"].pop(key, None)
         for section in ("config", "versions"):
-            difference = first_difference(previous.get(section), _plain(manifest[section]), section)
+            difference = first_difference(previous.get(section), now[section], section)
             if difference:
                 raise ConfigError(f"{out} holds a run with a different configuration ({difference}); "
                                   f"repeat that run's command to resume it, or use another --out")
