@@ -325,9 +325,9 @@ class Paradigm(Protocol):
     always run, as the gate). A paradigm may also offer ``pilot_effects(results, route)``
     (:class:`~vladrivebench.intervention.PilotEffects`) so that ``vdb intervene --plan`` can size a study, and
     ``step_batch`` / ``lockstep_group`` (:class:`BatchedParadigm`) so that ``vdb intervene --batch B`` runs its
-    episodes in lockstep (without them every episode runs on its own, whatever ``--batch`` says); and
-    ``effective_options()`` (:class:`EffectiveOptions`), the settings it runs with, defaults included,
-    recorded in the manifest so that a resume under other settings is refused.
+    episodes in lockstep (without them every episode runs on its own, whatever ``--batch`` says, and the
+    command says so on stderr); and ``effective_options()`` (:class:`EffectiveOptions`), the settings it
+    runs with, defaults included, recorded in the manifest so that a resume under other settings is refused.
     """
 
     name: str

@@ -640,12 +640,13 @@ class InterventionRun:
     """Runs an :class:`InterventionConfig` into ``out`` (resuming complete episodes) and analyses it."""
 
     def __init__(self, config: InterventionConfig, out: Path | str, *, registry: Any = None,
-                 progress: Progress | None = None):
+                 progress: Progress | None = None, on_note: Callable[[str], None] | None = None):
         from vladrivebench._engine.registry import get_registry
 
         self.config, self.out = config, Path(out)
         self.registry = registry or get_registry()
         self.progress = progress
+        self.on_note = on_note  # called once when the run is accepted, if it runs otherwise than asked
         self.paradigm = build_paradigm(self.registry, config.mode, config.paradigm_options)
         self.library = build_library(self.registry, config.condition_files)
         self.closure = check_references(self.library, list(config.tested))
@@ -699,6 +700,9 @@ class InterventionRun:
         self.splicer = Splicer(model, self.library, {}, self.model_name)
         self.preflight(harvested=False)
         prepare_out(self.out, manifest, optional=(SETTINGS_KEY,))
+        note = self.unbatched_note()
+        if note and self.on_note is not None:
+            self.on_note(note)
         _remove_stale_partials(self.out / EPISODES_DIR)  # left by a killed run (a batch leaves several)
         self.versions = manifest["versions"]
         try:
@@ -801,6 +805,23 @@ class InterventionRun:
         model = self.component("model")
         return (self.config.batch > 1 and isinstance(self.paradigm, BatchedParadigm)
                 and isinstance(model, BatchedModel) and callable(getattr(model, "splice_cot_batch", None)))
+
+    def unbatched_note(self) -> str | None:
+        """What to tell the user when ``--batch`` is above 1 but :meth:`lockstep` is not possible (the paradigm
+        or the model lacks the capability), else ``None``; one line naming each component that lacks it."""
+        from vladrivebench.protocols import BatchedModel, BatchedParadigm
+
+        if self.config.batch == 1 or self.lockstep():
+            return None
+        c, model = self.config, self.component("model")
+        reasons = []
+        if not isinstance(self.paradigm, BatchedParadigm):
+            reasons.append(f"paradigm {c.mode!r} has no batched step (BatchedParadigm)")
+        if not isinstance(model, BatchedModel):
+            reasons.append(f"model {c.model.name!r} has no batched forms")
+        elif not callable(getattr(model, "splice_cot_batch", None)):
+            reasons.append(f"model {c.model.name!r} has no splice_cot_batch")
+        return f"{' and '.join(reasons)}; {'its' if len(reasons) == 1 else 'the'} episodes run one at a time"
 
     def lockstep_chunks(self) -> list[list[PlannedEpisode]]:
         """The plan cut into fixed lockstep runs: the harvest baseline's lockstep group first (when the run
