@@ -312,6 +312,38 @@ def test_a_paradigm_or_model_without_the_capability_runs_as_today(registry, tmp_
         assert logged_steps(tmp_path / f"{mode}-{model}-4") == logged_steps(tmp_path / f"{mode}-{model}-1")
 
 
+def test_a_batch_the_run_cannot_use_is_said_once_on_stderr_and_the_results_are_unchanged(registry, tmp_path):
+    import json
+
+    from click.testing import CliRunner
+    from vladrivebench._cli.main import cli
+    from vladrivebench._engine import registry as plugins
+
+    base = ["intervene", "--sim", "line", "--controller", "speed", "--route", "E.1", "--seeds", "2", "--quiet", "--json"]
+    run_one_at_a_time = "episodes run one at a time\n"
+    cases = {
+        ("closed-loop", "keyword"): f"note: model 'keyword' has no batched forms; its {run_one_at_a_time}",
+        ("plain-open-loop", "keyword-batched"):
+            f"note: paradigm 'plain-open-loop' has no batched step (BatchedParadigm); its {run_one_at_a_time}",
+        ("plain-open-loop", "keyword"): f"note: paradigm 'plain-open-loop' has no batched step (BatchedParadigm) and "
+                                        f"model 'keyword' has no batched forms; the {run_one_at_a_time}",
+        ("closed-loop", "keyword-batched"): "",  # lockstep: nothing to say
+    }
+    previous = plugins.set_registry(registry)
+    try:
+        runner = CliRunner()
+        for (mode, model), note in cases.items():
+            def invoke(batch, mode=mode, model=model):
+                return runner.invoke(cli, [*base, "--mode", mode, "--model", model, "--batch", batch, "--out",
+                                           str(tmp_path / f"{mode}-{model}-{batch}")])
+            four, one = invoke("4"), invoke("1")
+            assert four.exit_code == 0 and one.exit_code == 0, (four.output, one.output)
+            assert four.stderr == note and one.stderr == ""
+            assert without_batch(json.loads(four.stdout)) == without_batch(json.loads(one.stdout))
+    finally:
+        plugins.set_registry(previous)
+
+
 # -- errors ---------------------------------------------------------------------------------------------
 @pytest.mark.parametrize("value", [0, -1, True, 2.5, "4"])
 def test_a_bad_batch_in_the_configuration_is_one_line(registry, value):

@@ -262,3 +262,114 @@ def test_planned_episodes_name_their_logs():
     route = type("Route", (), {"id": "E.1"})()
     assert PlannedEpisode(route, 3, "injected", "car").key == ("E.1", 3, "car")
     assert PlannedEpisode(route, 3, "baseline").name == "baseline"
+
+
+# -- the paradigm's effective settings in run.json (resume under another default is refused) ------------------
+def snapshot(out):
+    return {p.relative_to(out): p.read_bytes() for p in sorted(out.rglob("*")) if p.is_file()}
+
+
+class StatedEcho(Echo):
+    """Echo stating its settings itself (the EffectiveOptions capability), in its own normalised form."""
+
+    def __init__(self, weight: float = 1.0, reserved: bool = False, broken: bool = False):
+        super().__init__(weight, reserved)
+        self.broken = broken
+
+    def effective_options(self):
+        return ["weight"] if self.broken else {"weight": self.weight, "scale": "linear"}
+
+
+class StatedEchoPlugin:
+    @hookimpl
+    def register_paradigms(self, register):
+        register("stated-echo", StatedEcho)
+
+
+@pytest.fixture
+def stated_registry():
+    registry = fakes.fake_registry(("echo", EchoPlugin()), ("stated", StatedEchoPlugin()))
+    previous = plugins.set_registry(registry)
+    yield registry
+    plugins.set_registry(previous)
+
+
+def test_a_changed_default_is_refused_on_resume_and_the_same_defaults_resume(capsys, echo_registry, tmp_path,
+                                                                              monkeypatch):
+    out = tmp_path / "echo"
+    code, _, err = vdb(capsys, *BASE, "--mode", "echo", "--out", out)
+    assert code == 0, err
+    manifest = json.loads((out / "run.json").read_text())
+    assert manifest["config"]["paradigm_settings"] == {"reserved": False, "weight": 1.0}  # the signature's defaults
+    assert "paradigm_options" not in manifest["config"]
+    before = snapshot(out)
+
+    monkeypatch.setattr(Echo.__init__, "__defaults__", (1.5, False))  # a new version of the plugin
+    code, _, err = vdb(capsys, *BASE, "--mode", "echo", "--out", out)
+    one_line_error(code, err, "different configuration", "paradigm 'echo' setting weight: 1.5 now, 1.0 before",
+                   "a default of the paradigm changed", "use another --out")
+    assert snapshot(out) == before
+
+    monkeypatch.undo()
+    code, _, err = vdb(capsys, *BASE, "--mode", "echo", "--out", out)
+    assert code == 0, err
+    assert snapshot(out) == before  # resumed: nothing rerun, the same results
+
+
+def test_other_options_given_are_named_as_the_options(capsys, echo_registry, tmp_path):
+    out = tmp_path / "echo"
+    assert vdb(capsys, *BASE, "--mode", "echo", "--paradigm-opt", "weight=2", "--out", out)[0] == 0
+    code, _, err = vdb(capsys, *BASE, "--mode", "echo", "--paradigm-opt", "weight=3", "--out", out)
+    one_line_error(code, err, "different configuration", "config.paradigm_options.weight: 3 now, 2 before")
+
+
+def test_a_directory_written_before_the_settings_were_recorded_still_resumes(capsys, echo_registry, tmp_path):
+    out = tmp_path / "echo"
+    assert vdb(capsys, *BASE, "--mode", "echo", "--out", out)[0] == 0
+    manifest = json.loads((out / "run.json").read_text())
+    del manifest["config"]["paradigm_settings"]  # as written before the settings were recorded
+    (out / "run.json").write_text(json.dumps(manifest, indent=2) + "\n", encoding="utf-8")
+    before = snapshot(out)
+    code, _, err = vdb(capsys, *BASE, "--mode", "echo", "--out", out)
+    assert code == 0, err
+    assert snapshot(out) == before  # accepted as unknown; the manifest is left as it was
+
+
+def test_a_paradigm_may_state_its_settings_and_one_without_options_records_none(capsys, stated_registry, tmp_path):
+    code, _, err = vdb(capsys, *BASE, "--mode", "stated-echo", "--paradigm-opt", "weight=2", "--out", tmp_path / "s")
+    assert code == 0, err
+    config = json.loads((tmp_path / "s" / "run.json").read_text())["config"]
+    assert config["paradigm_settings"] == {"weight": 2.0, "scale": "linear"}
+
+    code, _, err = vdb(capsys, *BASE, "--mode", "stated-echo", "--paradigm-opt", "broken=true", "--out", tmp_path / "b")
+    one_line_error(code, err, "paradigm 'stated-echo'", "effective_options() returned list, expected a mapping")
+    assert not (tmp_path / "b").exists()
+
+    code, _, err = vdb(capsys, *BASE, "--mode", "closed-loop", "--conditions", "selfsplice", "--checkpoints", "1",
+                       "--out", tmp_path / "c")
+    assert code == 0, err
+    assert "paradigm_settings" not in json.loads((tmp_path / "c" / "run.json").read_text())["config"]
+
+
+def test_without_the_method_the_settings_are_the_options_given_over_the_plain_json_defaults():
+    from vladrivebench._engine.sweep import ComponentSpec
+    from vladrivebench._intervention.runs import paradigm_settings
+    from vladrivebench.intervention import EffectiveOptions
+
+    unset = object()
+
+    class Defaults(Echo):
+        def __init__(self, weight: float = 1.0, reserved: bool = False, levels=(0, 50), marker=unset, *, unit="words"):
+            super().__init__(weight, reserved)
+
+    class DefaultsPlugin:
+        @hookimpl
+        def register_paradigms(self, register):
+            register("defaults", Defaults)
+
+    registry = fakes.fake_registry(("defaults", DefaultsPlugin()))
+    spec = ComponentSpec("paradigm", "defaults", {"weight": 2})
+    paradigm = registry.create("paradigm", "defaults", {"weight": 2})
+    assert not isinstance(paradigm, EffectiveOptions)
+    assert paradigm_settings(paradigm, registry, spec) == {"weight": 2, "reserved": False, "levels": [0, 50],
+                                                           "unit": "words"}  # the sentinel is left out

@@ -140,6 +140,23 @@ def test_bad_batch_on_the_command_line_is_one_line_and_exit_2(tmp_path, value):
     assert not (tmp_path / "out").exists()
 
 
+def test_a_model_without_batched_forms_is_said_once_on_stderr_and_runs_as_before(tmp_path):
+    command = ("run", "--sim", "line", "--controller", "speed", "--scenarios", "road,car,long", "--seeds", 2, "--quiet",
+               "--json", "--batch", 2)
+    plain = subprocess.run(fake_vdb(*command, "--model", "echo", "--out", tmp_path / "plain"), capture_output=True,
+                           text=True)
+    assert plain.returncode == 0, plain.stderr
+    assert plain.stderr == "note: model 'echo' has no batched forms; its episodes run one at a time\n"
+    summary = json.loads(plain.stdout)  # stdout is the summary alone
+    assert summary["complete"] == 6 and summary["ran"] == 6
+    sweep_into(tmp_path / "direct", config("echo", batch=2))
+    assert snapshot(tmp_path / "plain" / "episodes") == snapshot(tmp_path / "direct" / "episodes")
+
+    batched = subprocess.run(fake_vdb(*command, "--model", "echo-batched", "--out", tmp_path / "batched"),
+                             capture_output=True, text=True)
+    assert batched.returncode == 0 and batched.stderr == ""  # a batched model: nothing to say
+
+
 def test_killed_batched_run_resumes_to_the_same_bytes(tmp_path):
     slow = ("--batch", 2, "--model-opt", "sleep=0.003")
     reference = tmp_path / "reference"

@@ -325,7 +325,9 @@ class Paradigm(Protocol):
     always run, as the gate). A paradigm may also offer ``pilot_effects(results, route)``
     (:class:`~vladrivebench.intervention.PilotEffects`) so that ``vdb intervene --plan`` can size a study, and
     ``step_batch`` / ``lockstep_group`` (:class:`BatchedParadigm`) so that ``vdb intervene --batch B`` runs its
-    episodes in lockstep; without them every episode runs on its own, whatever ``--batch`` says.
+    episodes in lockstep (without them every episode runs on its own, whatever ``--batch`` says, and the
+    command says so on stderr); and ``effective_options()`` (:class:`EffectiveOptions`), the settings it
+    runs with, defaults included, recorded in the manifest so that a resume under other settings is refused.
     """
 
     name: str
@@ -385,6 +387,29 @@ class BatchedParadigm(Protocol):
     def lockstep_group(self, episode: Any) -> Any:
         """A hashable key for episodes that must see the same batches at every step (planned consecutively
         and compared bit for bit, e.g. the selfsplice episode and its baseline), or ``None``."""
+        ...
+
+
+@runtime_checkable
+class EffectiveOptions(Protocol):
+    """A paradigm that states every setting it runs with, its defaults included.
+
+    ``vdb intervene`` records what :meth:`effective_options` returns in the run's manifest
+    (``config.paradigm_settings`` in ``run.json``) and refuses to resume a directory whose recorded
+    settings differ — e.g. after a default of the paradigm changed between two versions of its plugin — so
+    that one directory never mixes episodes made under different settings.
+
+    Without this capability the core records the factory's keyword arguments instead: the options given
+    (``--paradigm-opt``) merged with every default in the factory's signature that is a plain JSON value.
+    That is enough when the signature's defaults are the settings; a paradigm that takes defaults from
+    elsewhere (a sentinel such as ``None`` or a private object resolved when it is built, a module constant,
+    a configuration file) or normalises its options (``"25,50"`` → ``[25.0, 50.0]``) should offer this
+    method. A paradigm with no options records nothing (its manifest keeps its bytes).
+    """
+
+    def effective_options(self) -> Mapping[str, Any]:
+        """Every option the paradigm was built with, given or defaulted: option name → JSON-able value, in
+        the form the paradigm uses it (two ways of giving the same settings should give the same mapping)."""
         ...
 
 

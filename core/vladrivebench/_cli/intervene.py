@@ -213,7 +213,9 @@ def intervene_command(**opts: Any) -> None:
         registry = get_registry()
         config = build_config(opts, registry)
         progress = None if opts["quiet"] else episode_progress("vdb intervene")
-        results = InterventionRun(config, out, registry=registry, progress=progress).run()
+        from vladrivebench._cli.run import print_note
+
+        results = InterventionRun(config, out, registry=registry, progress=progress, on_note=print_note).run()
     if opts["plan"]:
         plans = seed_plan(results, effect_m=opts["effect"], power=opts["power"], alpha=opts["alpha"],
                           registry=get_registry())

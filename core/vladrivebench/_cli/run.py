@@ -195,7 +195,13 @@ def execute(settings: RunSettings, *, quiet: bool):
     config, executor, executor_info = build_request(settings, registry)
     return run_sweep(config, Path(settings.out), executor=executor, executor_info=executor_info,
                      retry_failed=settings.retry_failed, registry=registry,
-                     on_outcome=None if quiet else episode_progress("vdb run"))
+                     on_outcome=None if quiet else episode_progress("vdb run"), on_note=print_note)
+
+
+def print_note(text: str) -> None:
+    """One ``note: …`` line on stderr (even with ``--quiet``): the command runs otherwise than asked, e.g. a
+    ``--batch`` its model or paradigm cannot use. Results on stdout are unaffected."""
+    click.echo(f"note: {text}", err=True)
 
 
 # -- commands -----------------------------------------------------------------------------------------

@@ -495,12 +495,15 @@ OutcomeCallback = Callable[[EpisodeOutcome, int, int], None]
 
 def run_sweep(config: RunConfig, out: Path | str, *, executor: Any, executor_info: Mapping[str, Any] | None = None,
               retry_failed: bool = False, registry: Registry | None = None,
-              on_outcome: OutcomeCallback | None = None) -> SweepSummary:
+              on_outcome: OutcomeCallback | None = None,
+              on_note: Callable[[str], None] | None = None) -> SweepSummary:
     """Run every episode of ``config`` not already complete in ``out`` and return the directory's summary.
 
     Raises a one-line :class:`VdbError` (before anything is written) for unknown components, options their
     factories do not take, or an ``out`` holding a different run; and, during the sweep, for a component
-    that cannot be built because of the configuration (episodes already complete stay).
+    that cannot be built because of the configuration (episodes already complete stay). ``on_note(text)`` is
+    called once, once the directory is accepted, when the sweep runs otherwise than asked: a ``--batch``
+    above 1 with a model that has no batched forms (:func:`unbatched_note`).
     """
     started = time.perf_counter()
     registry = registry or get_registry()
@@ -510,11 +513,18 @@ def run_sweep(config: RunConfig, out: Path | str, *, executor: Any, executor_inf
     out = Path(out)
     check_output_directory(out)
     in_process = bool(getattr(executor, "in_process", False))
-    build_components(registry, components, keep=in_process)
+    try:
+        build_components(registry, components, keep=True)
+        note = unbatched_note(config, _component(registry, config.model))
+    finally:
+        if not in_process:
+            release_components()
     versions = collect_versions(registry, components)
     manifest = {"format": MANIFEST_FORMAT, "config": config.to_json(), "versions": versions,
                 "executor": dict(executor_info or {})}
     prepare_out(out, manifest)
+    if note and on_note is not None:
+        on_note(note)
     jobs = make_jobs(config, out, versions, registry if in_process else RegistrySpec.of(registry))
     failures = load_failures(out)
     todo, results = _plan(jobs, failures, retry_failed)
@@ -533,6 +543,17 @@ def run_sweep(config: RunConfig, out: Path | str, *, executor: Any, executor_inf
         write_failures(out, summary.failures)
         summary.seconds = time.perf_counter() - started
     return summary
+
+
+def unbatched_note(config: RunConfig, model: Any) -> str | None:
+    """What to tell the user when ``--batch`` above 1 meets a model without the
+    :class:`~vladrivebench.BatchedModel` capability (each lane then gets its own instance and the per-episode
+    methods, as without ``--batch``), else ``None``."""
+    from vladrivebench.protocols import BatchedModel
+
+    if config.batch > 1 and not isinstance(model, BatchedModel):
+        return f"model {config.model.name!r} has no batched forms; its episodes run one at a time"
+    return None
 
 
 def build_components(registry: Registry, components: Sequence[ComponentSpec], *, keep: bool) -> None:
@@ -652,14 +673,21 @@ def make_jobs(config: RunConfig, out: Path, versions: Mapping[str, str],
 
 
 # -- the output directory -----------------------------------------------------------------------------
-def prepare_out(out: Path, manifest: Mapping[str, Any]) -> None:
-    """Check ``out`` can hold this run (resume or new) and write the manifest if it is new."""
+def prepare_out(out: Path, manifest: Mapping[str, Any], *, optional: Iterable[str] = ()) -> None:
+    """Check ``out`` can hold this run (resume or new) and write the manifest if it is new.
+
+    ``optional`` names ``config`` keys that manifests written before they were recorded lack: a recorded
+    manifest without one is accepted (unknown, as before) and left as it is; one with it must match."""
     check_output_directory(out)
     path = out / MANIFEST_NAME
     if path.exists():
         previous = read_manifest(path)
+        now = {"config": _plain(manifest["config"]), "versions": _plain(manifest["versions"])}
+        for key in optional:
+            if key not in previous["config"]:
+                now["config"].pop(key, None)
         for section in ("config", "versions"):
-            difference = first_difference(previous.get(section), _plain(manifest[section]), section)
+            difference = first_difference(previous.get(section), now[section], section)
             if difference:
                 raise ConfigError(f"{out} holds a run with a different configuration ({difference}); "
                                   f"repeat that run's command to resume it, or use another --out")

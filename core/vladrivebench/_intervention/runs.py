@@ -19,7 +19,8 @@ bit. A run where any step differs is marked invalid in the results with the size
 
 Output directory (``OUT``)::
 
-    OUT/run.json                          manifest: configuration, condition definitions, versions
+    OUT/run.json                          manifest: configuration (with the paradigm's effective options),
+                                          condition definitions, versions
     OUT/episodes/<model>__<route>__s<seed>__<name>.mcap
                                           name = the planned episode's condition or role
     OUT/intervention.json                 results computed from the logs (what the metrics read)
@@ -70,6 +71,9 @@ DEFAULT_SEEDS = 5
 """Seeds per condition when none are asked for (the paper used 5–9 for open loop); see ``--plan``."""
 RESULTS_NAME = "intervention.json"
 RESULTS_FORMAT = 1
+SETTINGS_KEY = "paradigm_settings"
+"""The manifest's record of every setting the paradigm runs with, defaults included (absent when it has none,
+and in directories written before it was recorded: those resume as before)."""
 RESERVED_RESULT_KEYS = ("format", "mode", "paradigm_options", "model", "routes", "seeds", "conditions",
                         "definitions", "horizons", "checkpoints", "threshold", "alpha", "confidence", "gate",
                         "valid", "harvested")
@@ -636,12 +640,13 @@ class InterventionRun:
     """Runs an :class:`InterventionConfig` into ``out`` (resuming complete episodes) and analyses it."""
 
     def __init__(self, config: InterventionConfig, out: Path | str, *, registry: Any = None,
-                 progress: Progress | None = None):
+                 progress: Progress | None = None, on_note: Callable[[str], None] | None = None):
         from vladrivebench._engine.registry import get_registry
 
         self.config, self.out = config, Path(out)
         self.registry = registry or get_registry()
         self.progress = progress
+        self.on_note = on_note  # called once when the run is accepted, if it runs otherwise than asked
         self.paradigm = build_paradigm(self.registry, config.mode, config.paradigm_options)
         self.library = build_library(self.registry, config.condition_files)
         self.closure = check_references(self.library, list(config.tested))
@@ -677,7 +682,8 @@ class InterventionRun:
         versions = collect_versions(self.registry, (c.model, c.simulator, c.controller, paradigm))
         definitions = {cond.name: {**cond.to_json(), "source": self.library.sources.get(cond.name, "parametric")}
                        for cond in self.closure}
-        config = {**c.to_json(), "definitions": definitions,
+        settings = paradigm_settings(self.paradigm, self.registry, paradigm)
+        config = {**c.to_json(), **({SETTINGS_KEY: settings} if settings else {}), "definitions": definitions,
                   "route_specs": {r.id: r.to_json() for r in (*c.routes, c.harvest_scenario)}}
         return {"format": RESULTS_FORMAT, "kind": "intervention", "config": config, "versions": versions}
 
@@ -688,11 +694,15 @@ class InterventionRun:
         for spec in (self.config.model, self.config.simulator, self.config.controller):
             self.registry.get(spec.kind, spec.name)
         manifest = self.manifest()
+        check_paradigm_settings(self.out, manifest)
         model = self.component("model")
         self.model_name = self.config.model.name
         self.splicer = Splicer(model, self.library, {}, self.model_name)
         self.preflight(harvested=False)
-        prepare_out(self.out, manifest)
+        prepare_out(self.out, manifest, optional=(SETTINGS_KEY,))
+        note = self.unbatched_note()
+        if note and self.on_note is not None:
+            self.on_note(note)
         _remove_stale_partials(self.out / EPISODES_DIR)  # left by a killed run (a batch leaves several)
         self.versions = manifest["versions"]
         try:
@@ -795,6 +805,23 @@ class InterventionRun:
         model = self.component("model")
         return (self.config.batch > 1 and isinstance(self.paradigm, BatchedParadigm)
                 and isinstance(model, BatchedModel) and callable(getattr(model, "splice_cot_batch", None)))
+
+    def unbatched_note(self) -> str | None:
+        """What to tell the user when ``--batch`` is above 1 but :meth:`lockstep` is not possible (the paradigm
+        or the model lacks the capability), else ``None``; one line naming each component that lacks it."""
+        from vladrivebench.protocols import BatchedModel, BatchedParadigm
+
+        if self.config.batch == 1 or self.lockstep():
+            return None
+        c, model = self.config, self.component("model")
+        reasons = []
+        if not isinstance(self.paradigm, BatchedParadigm):
+            reasons.append(f"paradigm {c.mode!r} has no batched step (BatchedParadigm)")
+        if not isinstance(model, BatchedModel):
+            reasons.append(f"model {c.model.name!r} has no batched forms")
+        elif not callable(getattr(model, "splice_cot_batch", None)):
+            reasons.append(f"model {c.model.name!r} has no splice_cot_batch")
+        return f"{' and '.join(reasons)}; {'its' if len(reasons) == 1 else 'the'} episodes run one at a time"
 
     def lockstep_chunks(self) -> list[list[PlannedEpisode]]:
         """The plan cut into fixed lockstep runs: the harvest baseline's lockstep group first (when the run
@@ -943,6 +970,81 @@ def _episode_error(path: Path, failure: Exception) -> VdbError:
     if isinstance(cause, VdbError):
         return type(cause)(str(cause))
     return VdbError(f"episode {path.stem} failed: {failure}")
+
+
+def paradigm_settings(paradigm: Any, registry: Any, spec: Any) -> dict[str, Any]:
+    """Every setting ``paradigm`` (built from ``spec``) runs with, as JSON: its ``effective_options()``
+    (:class:`~vladrivebench.protocols.EffectiveOptions`) when it has the method, else the options given merged
+    with the defaults of its factory's signature that are plain JSON values (a sentinel object's text would
+    differ from process to process, and so refuse every resume)."""
+    from vladrivebench.protocols import EffectiveOptions
+
+    if not isinstance(paradigm, EffectiveOptions):
+        return _plain({**_json_defaults(registry.get("paradigm", spec.name).factory), **dict(spec.options)})
+    settings = paradigm.effective_options()
+    if not isinstance(settings, Mapping) or not all(isinstance(k, str) for k in settings):
+        raise VdbError(f"paradigm {spec.name!r} (plugin {registry.get('paradigm', spec.name).plugin!r}): "
+                       f"effective_options() returned {type(settings).__name__}, expected a mapping of option "
+                       f"name → value")
+    return _plain(dict(settings))
+
+
+def _json_defaults(factory: Any) -> dict[str, Any]:
+    """The keyword defaults of ``factory``'s signature that JSON can hold as they are."""
+    import inspect
+
+    try:
+        parameters = inspect.signature(factory).parameters.values()
+    except (TypeError, ValueError):
+        return {}
+    defaults = {}
+    for p in parameters:
+        if p.kind in (p.KEYWORD_ONLY, p.POSITIONAL_OR_KEYWORD) and p.default is not p.empty:
+            try:
+                json.dumps(p.default)
+            except (TypeError, ValueError):
+                continue
+            defaults[p.name] = p.default
+    return defaults
+
+
+def check_paradigm_settings(out: Path, manifest: Mapping[str, Any]) -> None:
+    """Refuse, in one line and before anything is touched, to resume a run of the same paradigm, asked with the
+    same options, whose recorded settings (``SETTINGS_KEY``) differ from this run's: a default of the paradigm
+    changed since (e.g. its plugin was upgraded). The line names the first differing setting.
+
+    A directory whose manifest does not record the settings (written before they were recorded) is accepted,
+    as before: its settings are unknown. Every other difference, other options given included, is
+    :func:`~vladrivebench._engine.sweep.prepare_out`'s to refuse."""
+    from vladrivebench._engine.sweep import MANIFEST_NAME, read_manifest
+
+    path = out / MANIFEST_NAME
+    if not path.is_file():
+        return
+    before, now = read_manifest(path)["config"], _plain(manifest["config"])
+    if (SETTINGS_KEY not in before or before.get("mode") != now["mode"]
+            or before.get("paradigm_options", {}) != now.get("paradigm_options", {})):
+        return
+    recorded, current = before[SETTINGS_KEY], now.get(SETTINGS_KEY, {})
+    if not isinstance(recorded, dict):
+        return  # not a record of settings: prepare_out names the difference
+    changed = next((key for key in sorted(set(recorded) | set(current))
+                    if recorded.get(key, _MISSING) != current.get(key, _MISSING)), None)
+    if changed is not None:
+        raise ConfigError(
+            f"{out} holds a run with a different configuration (paradigm {now['mode']!r} setting {changed}: "
+            f"{_setting(current.get(changed, _MISSING))} now, {_setting(recorded.get(changed, _MISSING))} before; "
+            f"the options given are the same, so a default of the paradigm changed since that run); resuming "
+            f"would mix episodes made under both, so use another --out")
+
+
+_MISSING = object()
+
+
+def _setting(value: Any) -> str:
+    from vladrivebench._engine.sweep import _short
+
+    return "absent" if value is _MISSING else _short(value)
 
 
 def build_paradigm(registry: Any, name: str, options: Mapping[str, Any] | None = None) -> Any:

@@ -25,7 +25,9 @@ and what it measures. The core's own (open-loop, closed-loop, safety) are built 
   :func:`from_json_number`;
 - tables: :func:`signed`, :func:`p_text`, :func:`interval_text`, :func:`number_text`, :func:`cell_value`,
   :func:`model_text` (cells and tables themselves are in :mod:`vladrivebench.metrics`); :class:`PilotEffects` for
-  ``vdb intervene --plan``.
+  ``vdb intervene --plan``;
+- resuming: :class:`EffectiveOptions` (the optional capability stating every setting a paradigm runs with,
+  defaults included, recorded in ``run.json`` so that a resume under other settings is refused).
 """
 
 from vladrivebench._intervention.conditions import (
@@ -82,7 +84,7 @@ from vladrivebench._intervention.stats import (
     t_interval,
     with_holm,
 )
-from vladrivebench.protocols import BatchedParadigm, PilotEffects
+from vladrivebench.protocols import BatchedParadigm, EffectiveOptions, PilotEffects
 
 __all__ = [
     # conditions
@@ -102,4 +104,6 @@ __all__ = [
     "holm_adjust", "one_sample_t_test", "t_interval", "Interval", "json_number", "from_json_number",
     # tables
     "signed", "p_text", "interval_text", "number_text", "cell_value", "model_text", "PilotEffects",
+    # resuming
+    "EffectiveOptions",
 ]

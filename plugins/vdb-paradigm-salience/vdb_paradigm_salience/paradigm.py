@@ -74,7 +74,8 @@ class Salience:
     Options (``--paradigm-opt``): ``kinds`` (pedestrian, car, animal; default pedestrian,car), ``offsets``
     (m left of the ego lane's centre; default -1,0), ``distances`` (m from the ego's front to the obstacle
     at injection onset; default 25,50), ``sizes`` (× the kind's default size; default 1) and ``max_time``
-    (s per episode; default 16).
+    (s per episode; default 30). :meth:`effective_options` states them all, defaults included, for the run's
+    manifest.
     """
 
     name = "salience"
@@ -84,6 +85,13 @@ class Salience:
                  distances: Any = DEFAULT_DISTANCES, sizes: Any = DEFAULT_SIZES,
                  max_time: Any = DEFAULT_MAX_TIME_S):
         self.grid: GridOptions = grid_options(kinds, offsets, distances, sizes, max_time)
+
+    def effective_options(self) -> dict[str, Any]:
+        """The grid as this paradigm runs it, given options and defaults alike, parsed (``vdb intervene``
+        records it in ``run.json`` and refuses to resume a directory made with another grid or episode length)."""
+        g = self.grid
+        return {"kinds": list(g.kinds), "offsets": list(g.offsets), "distances": list(g.distances),
+                "sizes": list(g.sizes), "max_time": g.max_time}
 
     # -- planning --
     def check(self, config: Any) -> None:
@@ -163,9 +171,7 @@ class Salience:
                 for kind in self.grid.kinds}
         return {"salience": {
             "base_route": base_id, "condition": condition, "obstacle": obstacle,
-            "grid": {"kinds": list(self.grid.kinds), "offsets": list(self.grid.offsets),
-                     "distances": list(self.grid.distances), "sizes": list(self.grid.sizes),
-                     "max_time": self.grid.max_time},
+            "grid": self.effective_options(),
             "salience_measure": "pixels covered in the front camera at onset (rendered with vs without the obstacle)",
             "contrast": CONTRAST_NOTE, "cells": cells, "fits": fits}}
 
