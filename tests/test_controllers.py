@@ -175,3 +175,46 @@ def test_controllers_are_registered_by_the_core_plugin():
     assert {"pid", "mpc"} <= set(registry.names("controller"))
     assert isinstance(registry.create("controller", "pid", {"aim_distance": 5.0}), PIDController)
     assert isinstance(registry.create("controller", "mpc", {"horizon_steps": 10}), MPCController)
+
+
+def accelerating_trajectory(accel: float) -> Trajectory:
+    """From the ego at rest, straight ahead at constant acceleration ``accel``."""
+    return Trajectory(TIMES.copy(), np.stack([0.5 * accel * TIMES**2, np.zeros_like(TIMES)], axis=1))
+
+
+@settings(max_examples=60, deadline=None)
+@given(creep=st.floats(0.0, 0.2), speed=st.floats(0.0, 0.099), x=st.floats(-50, 50), yaw=st.floats(-3.1, 3.1))
+def test_mpc_holds_a_standstill_against_a_creeping_plan(creep, speed, x, yaw):
+    """A nearly stopped ego whose plan covers under 0.25 m in its first second stops at once and stays put."""
+    controller, ego = MPCController(), EgoState(x, 1.0, yaw, speed)
+    stopped_at = None
+    for _ in range(20):
+        creeping = Trajectory(TIMES.copy(), np.stack([creep * TIMES, np.zeros_like(TIMES)], axis=1))
+        control = controller.control(creeping, ego, DT)
+        assert control.brake == 1.0 and control.throttle == 0.0
+        assert control.next_state.speed == 0.0
+        ego = control.next_state
+        stopped_at = stopped_at or (ego.x, ego.y)
+        assert (ego.x, ego.y) == stopped_at
+
+
+@settings(max_examples=30, deadline=None)
+@given(accel=st.floats(0.6, 3.0))
+def test_mpc_leaves_the_hold_for_a_plan_that_pulls_away(accel):
+    ego = EgoState(0.0, 0.0, 0.0, 0.0)
+    control = MPCController().control(accelerating_trajectory(accel), ego, DT)
+    assert control.next_state.speed > 0.0 and control.throttle > 0.0
+
+
+def test_mpc_without_the_hold_follows_a_creeping_plan():
+    creeping = Trajectory(TIMES.copy(), np.stack([0.05 * TIMES, np.zeros_like(TIMES)], axis=1))
+    ego = EgoState(0.0, 0.0, 0.0, 0.0)
+    for _ in range(30):
+        ego = MPCController(hold_speed=0.0).control(creeping, ego, DT).next_state
+    assert ego.x > 0.0
+
+
+@pytest.mark.parametrize("option", [{"hold_speed": -1.0}, {"start_distance": "far"}, {"start_window": 0.0}])
+def test_mpc_rejects_bad_hold_options(option):
+    with pytest.raises(ValueError, match=next(iter(option))):
+        MPCController(**option)

@@ -216,11 +216,19 @@ class MPCController:
     never faster than ``max_speed`` nor reversing. ``v_des`` is the trajectory's target speed over the next
     step (its arc length at ``dt`` divided by ``dt``), capped at ``max_speed``. ``throttle``/``brake``/``steer``
     report the same plan in the vehicle model's units, for logs.
+
+    Standstill hold (like a production longitudinal controller's stopped state): when the ego is slower
+    than ``hold_speed`` and the trajectory covers less than ``start_distance`` metres in its first
+    ``start_window`` seconds, the ego stops and stays, brake applied. A plan that creeps at millimetres a
+    second (a learnt planner rarely outputs an exact zero) then holds instead of inching into what it stopped
+    for; a plan that pulls away (e.g. 0.5 m/s² from rest covers 0.25 m in a second) leaves the hold.
+    ``hold_speed=0`` turns the hold off.
     """
 
     def __init__(self, *, horizon_steps: int = 20, max_accel: float = THROTTLE_ACCEL,
                  max_decel: float = BRAKE_DECEL, max_curvature: float = MAX_CURVATURE,
-                 max_speed: float = MAX_SPEED, min_preview: float = 8.0, weights: MPCWeights | None = None):
+                 max_speed: float = MAX_SPEED, min_preview: float = 8.0, weights: MPCWeights | None = None,
+                 hold_speed: float = 0.1, start_distance: float = 0.25, start_window: float = 1.0):
         if isinstance(horizon_steps, bool) or not isinstance(horizon_steps, int) or not 1 <= horizon_steps <= 1000:
             raise ValueError(f"option 'horizon_steps' must be a whole number from 1 to 1000, got {horizon_steps!r}")
         self.horizon_steps = int(horizon_steps)
@@ -231,6 +239,9 @@ class MPCController:
         min_preview = _option_number("min_preview", min_preview, low=0.0, low_open=False)
         self.weights = weights or MPCWeights()
         self.min_preview = min_preview
+        self.hold_speed = _option_number("hold_speed", hold_speed, low=0.0, low_open=False)
+        self.start_distance = _option_number("start_distance", start_distance, low=0.0, low_open=False)
+        self.start_window = _option_number("start_window", start_window, low=0.0)
         self._last_accel = 0.0
         self._last_curvature = 0.0
 
@@ -251,7 +262,7 @@ class MPCController:
 
         accel = self._plan_accelerations(ego.speed, s_ref, np.minimum(v_ref, self.max_speed), dt)
         speed1 = float(np.clip(ego.speed + accel * dt, 0.0, self.max_speed))
-        if speed1 < STANDSTILL:
+        if speed1 < STANDSTILL or self._holds(ego.speed, times, progress):
             speed1 = 0.0
         accel = (speed1 - ego.speed) / dt
         travelled = 0.5 * (ego.speed + speed1) * dt
@@ -267,6 +278,12 @@ class MPCController:
         next_state = advance(ego, throttle, steer, brake, dt)
         return Control(throttle=throttle, steer=steer, brake=brake, v_des=max(v_des, 0.0),
                        next_state=next_state)
+
+    def _holds(self, speed: float, times: np.ndarray, progress: np.ndarray) -> bool:
+        """Whether the standstill hold applies: the ego nearly stopped and the plan not pulling away."""
+        if speed >= self.hold_speed:
+            return False
+        return float(np.interp(self.start_window, times, progress)) < self.start_distance
 
     def _plan_accelerations(self, v0: float, s_ref: np.ndarray, v_ref: np.ndarray, dt: float) -> float:
         """First acceleration of the plan minimising position, speed, effort and jerk errors."""
