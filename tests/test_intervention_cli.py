@@ -74,6 +74,10 @@ def test_invalid_gate_is_loud_and_exits_3(capsys, tmp_path):
     (["--model", "nope"], ["unknown model 'nope'"]),
     (["--route", "E.9"], ["E.9"]),
     (["--model-opt", "colour=red"], ["does not take option 'colour'"]),
+    (["--workers", "0"], ["--workers must be a whole number from 1"]),
+    (["--executor", "sequential", "--workers", "2"], ["--executor sequential runs one episode at a time"]),
+    (["--executor", "nope"], ["unknown executor 'nope'"]),
+    (["--executor-opt", "speed=3"], ["does not take option 'speed'"]),
 ])
 def test_bad_input_is_one_line_and_writes_nothing(capsys, tmp_path, args, fragments):
     out_dir = tmp_path / "out"

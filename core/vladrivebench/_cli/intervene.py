@@ -180,6 +180,11 @@ def _num(value: Any) -> str:
               help="Decode a step's open-loop conditions in one batch when the model has decode_batch.")
 @click.option("--batch", help="Planned episodes advancing in lockstep through one model (default 1; part of the "
               "configuration: results may differ from unbatched in floating point).")
+@click.option("--executor", help="sequential, process, or a plugin's (e.g. ray); default: process if --workers > 1. "
+                                 "Workers run the batches (or episodes) in parallel: the same bytes as one process.")
+@click.option("--executor-opt", multiple=True, metavar="KEY=VALUE", help="Executor option (repeatable).")
+@click.option("--workers", type=int, help="Parallel workers (process: default = CPU count, at most 8).")
+@click.option("--address", help="Cluster address for a distributed executor (e.g. --executor ray).")
 @click.option("--plan", is_flag=True, help="Print how many seeds each condition needs (from OUT's results, or "
               "after running this pilot).")
 @click.option("--effect", type=float, help="--plan: the effect to detect, in metres (default: the pilot's).")
@@ -213,9 +218,13 @@ def intervene_command(**opts: Any) -> None:
         registry = get_registry()
         config = build_config(opts, registry)
         progress = None if opts["quiet"] else episode_progress("vdb intervene")
-        from vladrivebench._cli.run import print_note
+        from vladrivebench._cli.run import build_executor, print_note
+        from vladrivebench._engine.options import parse_options
 
-        results = InterventionRun(config, out, registry=registry, progress=progress, on_note=print_note).run()
+        executor, _ = build_executor(registry, opts["executor"], opts["workers"], opts["address"],
+                                     parse_options(opts["executor_opt"], "--executor-opt"))
+        results = InterventionRun(config, out, registry=registry, progress=progress, on_note=print_note,
+                                  executor=executor).run()
     if opts["plan"]:
         plans = seed_plan(results, effect_m=opts["effect"], power=opts["power"], alpha=opts["alpha"],
                           registry=get_registry())

@@ -98,7 +98,6 @@ def merge_settings(file_values: Mapping[str, Any], cli_values: Mapping[str, Any]
 
 def build_request(settings: RunSettings, registry: Any):
     """The sweep's :class:`RunConfig`, its executor and the executor's description, all checked."""
-    from vladrivebench._engine.registry import check_options
     from vladrivebench._engine.sweep import ComponentSpec, RunConfig, batch_size, seed_list
     from vladrivebench._scenarios.spec import resolve_scenarios
 
@@ -114,15 +113,25 @@ def build_request(settings: RunSettings, registry: Any):
                        ComponentSpec("simulator", sim, settings.sim_options),
                        ComponentSpec("controller", settings.controller, settings.controller_options),
                        tuple(scenarios), seeds, settings.log_images, batch)
-    executor_name = settings.executor or ("process" if (settings.workers or 1) > 1 else "sequential")
-    _check_workers(executor_name, settings.workers)
-    options = dict(settings.executor_options)
-    if settings.address is not None:
-        options["address"] = settings.address
-    options["workers"] = settings.workers if settings.workers is not None else _default_workers(executor_name)
+    executor, executor_info = build_executor(registry, settings.executor, settings.workers, settings.address,
+                                             settings.executor_options)
+    return config, executor, executor_info
+
+
+def build_executor(registry: Any, name: str | None, workers: int | None, address: str | None,
+                   executor_options: dict[str, Any]) -> tuple[Any, dict[str, Any]]:
+    """The executor ``--executor/--workers/--address/--executor-opt`` ask for (sequential unless ``--workers``
+    is above 1 or another is named) and its description, every mistake one line."""
+    from vladrivebench._engine.registry import check_options
+
+    executor_name = name or ("process" if (workers or 1) > 1 else "sequential")
+    _check_workers(executor_name, workers)
+    options = dict(executor_options)
+    if address is not None:
+        options["address"] = address
+    options["workers"] = workers if workers is not None else _default_workers(executor_name)
     check_options("executor", executor_name, registry.get("executor", executor_name).factory, options)
-    executor = registry.create("executor", executor_name, options)
-    return config, executor, {"name": executor_name, **options}
+    return registry.create("executor", executor_name, options), {"name": executor_name, **options}
 
 
 def _check_workers(executor_name: str, workers: Any) -> None:

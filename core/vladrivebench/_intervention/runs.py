@@ -640,10 +640,15 @@ class InterventionRun:
     """Runs an :class:`InterventionConfig` into ``out`` (resuming complete episodes) and analyses it."""
 
     def __init__(self, config: InterventionConfig, out: Path | str, *, registry: Any = None,
-                 progress: Progress | None = None, on_note: Callable[[str], None] | None = None):
+                 progress: Progress | None = None, on_note: Callable[[str], None] | None = None,
+                 executor: Any = None):
         from vladrivebench._engine.registry import get_registry
 
         self.config, self.out = config, Path(out)
+        # Runs the episodes' shares in worker processes (or a cluster) when it is not an in-process one; the
+        # shares are the same lockstep chunks (or single episodes) either way, so the logs are the same bytes.
+        self.executor = executor
+        self.injections: dict[str, Any] = {}  # the harvested conditions' texts, once harvested
         self.registry = registry or get_registry()
         self.progress = progress
         self.on_note = on_note  # called once when the run is accepted, if it runs otherwise than asked
@@ -707,8 +712,8 @@ class InterventionRun:
         self.versions = manifest["versions"]
         try:
             harvested = self.harvest() if self.harvest_names else {}
-            self.splicer = Splicer(model, self.library, {k: v.injection for k, v in harvested.items()},
-                                   self.model_name)
+            self.injections = {k: v.injection for k, v in harvested.items()}
+            self.splicer = Splicer(model, self.library, self.injections, self.model_name)
             if harvested:
                 self.preflight(harvested=True)
             self.run_episodes()
@@ -774,9 +779,12 @@ class InterventionRun:
 
     def run_episodes(self) -> None:
         """Every episode the paradigm plans, under the policy it gives, skipping complete logs (in lockstep
-        batches when :meth:`lockstep` says so)."""
+        batches when :meth:`lockstep` says so; on the executor's workers when it runs out of process)."""
         plan = self.planned()
         context = RunContext(self.config, self.splicer)
+        if self.executor is not None and not getattr(self.executor, "in_process", False):
+            self.run_on_executor(plan)
+            return
         if self.lockstep():
             finished: list[PlannedEpisode] = []
 
@@ -790,6 +798,54 @@ class InterventionRun:
         for done, episode in enumerate(plan, start=1):
             self.ensure_episode(episode, self.paradigm.policy(episode, context))
             self._report(episode, done, len(plan))
+
+    def run_on_executor(self, plan: Sequence[PlannedEpisode]) -> None:
+        """The plan's shares without complete logs as :class:`InterventionJob` s on the executor's workers."""
+        from vladrivebench._engine.executors import JobFailure
+        from vladrivebench._engine.sweep import RegistrySpec
+
+        lockstep = self.lockstep()
+        shares = self.lockstep_chunks() if lockstep else [[episode] for episode in plan]
+        registry = RegistrySpec.of(self.registry)
+        jobs, finished = [], 0
+        for share in shares:
+            if all(self.complete(episode) for episode in share):
+                for episode in share:
+                    finished += 1
+                    self._report(episode, finished, len(plan))
+                continue
+            jobs.append(InterventionJob(self.config, str(self.out), tuple(share), lockstep,
+                                        dict(self.injections), dict(self.versions), registry))
+        stream = self.executor.run(run_intervention_job, jobs)
+        try:
+            for item in stream:
+                if isinstance(item, JobError):
+                    raise item.error()
+                if isinstance(item, JobFailure):
+                    raise VdbError(f"intervention episodes from {item.job.share_name()} failed in a worker: "
+                                   f"{item.error}")
+                for episode in item:
+                    finished += 1
+                    self._report(episode, finished, len(plan))
+        finally:
+            close = getattr(stream, "close", None)
+            if callable(close):
+                close()
+
+    def complete(self, episode: PlannedEpisode) -> bool:
+        """Whether ``episode`` has a complete log."""
+        from vladrivebench._logs.episodes import read_result
+
+        path = self.episode_path(episode)
+        return path.exists() and read_result(path) is not None
+
+    def attach(self, injections: Mapping[str, Any], versions: Mapping[str, Any]) -> None:
+        """Ready a worker's copy of the run to log episodes: the harvested texts and the recorded versions the
+        driver found (a worker never harvests, prepares the directory or analyses)."""
+        self.model_name = self.config.model.name
+        self.injections = dict(injections)
+        self.splicer = Splicer(self.component("model"), self.library, self.injections, self.model_name)
+        self.versions = dict(versions)
 
     def _report(self, episode: PlannedEpisode, done: int, total: int) -> None:
         if self.progress is not None:
@@ -970,6 +1026,59 @@ def _episode_error(path: Path, failure: Exception) -> VdbError:
     if isinstance(cause, VdbError):
         return type(cause)(str(cause))
     return VdbError(f"episode {path.stem} failed: {failure}")
+
+
+@dataclass(frozen=True)
+class InterventionJob:
+    """One share of an intervention run for an executor's worker (picklable): a lockstep chunk, or one
+    episode of an unbatched run, with what the driver found before (harvested texts, component versions)."""
+
+    config: InterventionConfig
+    out: str
+    episodes: tuple[PlannedEpisode, ...]
+    lockstep: bool
+    injections: Mapping[str, Any]
+    versions: Mapping[str, Any]
+    registry: Any
+
+    def share_name(self) -> str:
+        first = self.episodes[0]
+        more = f" and {len(self.episodes) - 1} more" if len(self.episodes) > 1 else ""
+        return f"{first.route.id} seed {first.seed} {first.name}{more}"
+
+
+@dataclass(frozen=True)
+class JobError:
+    """The one-line error that stopped a worker's share, sent back for the driver to raise as it was."""
+
+    message: str
+    exit_code: int
+
+    def error(self) -> VdbError:
+        error = VdbError(self.message)
+        error.exit_code = self.exit_code
+        return error
+
+
+def run_intervention_job(job: InterventionJob) -> list[PlannedEpisode] | JobError:
+    """Worker: log ``job``'s episodes that lack a complete log; its episodes, or the one-line error that
+    stopped them (a :class:`JobError`: an exception's own class need not survive pickling)."""
+    from vladrivebench._engine.sweep import _registry_for
+
+    run = InterventionRun(job.config, job.out, registry=_registry_for(job.registry))
+    try:
+        run.attach(job.injections, job.versions)
+        context = RunContext(job.config, run.splicer)
+        if job.lockstep:
+            run.run_chunk(job.episodes, context)
+        else:
+            for episode in job.episodes:
+                run.ensure_episode(episode, run.paradigm.policy(episode, context))
+    except VdbError as exc:
+        return JobError(str(exc), exc.exit_code)
+    finally:
+        run.close()
+    return list(job.episodes)
 
 
 def paradigm_settings(paradigm: Any, registry: Any, spec: Any) -> dict[str, Any]:
