@@ -1,11 +1,14 @@
 """Regenerate the result tables of this plugin's README with ``vdb`` commands (nothing is typed by hand).
 
     python -m vdb_model_neural.results --out runs/neural [--quick] [--only kv-open-loop,suite] [--batch 16]
+                                       [--streams 2]
 
 Each experiment is one ``vdb`` command (printed before it runs); its stdout is pasted verbatim into the
 README between ``<!-- results:NAME -->`` and ``<!-- /results:NAME -->``. Output directories are resumed,
 so an interrupted regeneration redoes only what is missing. Every ``vdb run`` / ``vdb intervene`` runs its
 episodes in lockstep batches of ``--batch`` (the same bytes for the same batch size; see the README).
+``--streams N`` regenerates N sections side by side (each section's commands in order, one process each:
+on a 2-core machine two streams keep both cores busy); the sections' bytes do not depend on it.
 """
 
 from __future__ import annotations
@@ -16,6 +19,7 @@ import re
 import subprocess
 import sys
 import time
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 README = Path(__file__).resolve().parent.parent / "README.md"
@@ -111,6 +115,18 @@ def update_readme(name: str, body: str) -> None:
         README.write_text(fill(README.read_text(), name, body))
 
 
+def regenerate(name: str, commands: list[list[str]], out: Path, batch: int) -> None:
+    """Run one section's commands in order and paste their stdout into the README."""
+    outputs = []
+    for command in with_batch(commands, batch):
+        argv = [a.replace("{out}", str(out)) for a in command]
+        text = run_vdb(argv)
+        shown = " ".join(a.replace(str(out), "OUT") for a in argv)
+        outputs.append(f"$ vdb {shown}\n{text.replace(str(out), 'OUT')}")
+    update_readme(name, "```text\n" + "\n\n".join(outputs) + "\n```")
+    print(f"README section {name} updated", file=sys.stderr)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, required=True)
@@ -118,26 +134,23 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true", help="Fewer seeds (a smoke run; tables are noisier).")
     parser.add_argument("--batch", type=int, default=16,
                         help="Episodes advanced in lockstep per model call (default 16; 1 = unbatched).")
+    parser.add_argument("--streams", type=int, default=2,
+                        help="Sections regenerated side by side (default 2, one per core of the reference machine).")
     args = parser.parse_args()
     if args.batch < 1:
         parser.error(f"--batch must be a positive integer, got {args.batch}")
+    if args.streams < 1:
+        parser.error(f"--streams must be a positive integer, got {args.streams}")
     seeds = ({"open": 3, "qa_open": 2, "closed": 3, "safety": 2, "driving": 2, "suite": 1} if args.quick
              else {"open": 7, "qa_open": 3, "closed": 5, "safety": 4, "driving": 5, "suite": 1})
     only = set(args.only.split(",")) if args.only else None
     started = time.perf_counter()
     if not only or "training" in only:
         update_readme("training", training_table())
-    for name, commands in experiments(seeds):
-        if only and name not in only:
-            continue
-        outputs = []
-        for command in with_batch(commands, args.batch):
-            argv = [a.replace("{out}", str(args.out)) for a in command]
-            text = run_vdb(argv)
-            shown = " ".join(a.replace(str(args.out), "OUT") for a in argv)
-            outputs.append(f"$ vdb {shown}\n{text.replace(str(args.out), 'OUT')}")
-        update_readme(name, "```text\n" + "\n\n".join(outputs) + "\n```")
-        print(f"README section {name} updated", file=sys.stderr)
+    sections = [(name, commands) for name, commands in experiments(seeds) if not only or name in only]
+    with ThreadPoolExecutor(max_workers=args.streams) as pool:
+        for future in [pool.submit(regenerate, name, commands, args.out, args.batch) for name, commands in sections]:
+            future.result()
     print(f"all sections: {time.perf_counter() - started:.0f} s wall time", file=sys.stderr)
 
 

@@ -1,7 +1,7 @@
 """Regenerate the README's salience result with one ``vdb`` command (nothing is typed by hand).
 
     python -m vdb_paradigm_salience.results --out DIR [--seeds 10] [--model kv] [--controller mpc] [--batch 16]
-                                                      [--readme PATH | --print]
+                                                      [--workers 2] [--readme PATH | --print]
 
 Runs (or resumes: complete episodes are kept) the command printed in the block, then writes between
 ``<!-- results:kv-salience -->`` and ``<!-- /results:kv-salience -->`` of the README: the command, its
@@ -33,12 +33,14 @@ from 25 m, from 50 m (where SAFE.* starts cruising) and from the start (70 m: th
 injection, as ``--mode safety``)."""
 
 
-def command(out: Path, seeds: int, model: str, controller: str, batch: int = 16) -> list[str]:
-    """The ``vdb`` arguments of the README's sweep (episodes in lockstep batches of ``batch``)."""
+def command(out: Path, seeds: int, model: str, controller: str, batch: int = 16, workers: int = 1) -> list[str]:
+    """The ``vdb`` arguments of the README's sweep (episodes in lockstep batches of ``batch``, the batches on
+    ``workers`` processes: the same bytes for any number of workers)."""
     args = ["intervene", "--model", model, "--controller", controller, "--mode", "salience", "--route",
             "SAFE.kerb-ped"]
     for item in GRID:
         args += ["--paradigm-opt", item]
+    args += ["--workers", str(workers)] if workers > 1 else []
     return args + ["--seeds", str(seeds), "--batch", str(batch), "--out", str(out / SECTION)]
 
 
@@ -130,6 +132,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--model", default="kv")
     parser.add_argument("--controller", default="mpc")
     parser.add_argument("--batch", type=int, default=16, help="episodes per lockstep batch (1 = unbatched)")
+    parser.add_argument("--workers", type=int, default=2, help="processes running the batches (default 2)")
     parser.add_argument("--readme", type=Path, default=README)
     parser.add_argument("--print", action="store_true", help="print the block instead of writing the README")
     opts = parser.parse_args(argv)
@@ -137,7 +140,9 @@ def main(argv: list[str] | None = None) -> None:
         parser.error("--seeds must be a whole number ≥ 1")
     if opts.batch < 1:
         parser.error(f"--batch must be a positive integer, got {opts.batch}")
-    args = command(opts.out, opts.seeds, opts.model, opts.controller, opts.batch)
+    if opts.workers < 1:
+        parser.error(f"--workers must be a positive integer, got {opts.workers}")
+    args = command(opts.out, opts.seeds, opts.model, opts.controller, opts.batch, opts.workers)
     print("$ vdb " + shlex.join(args), file=sys.stderr)
     stdout = run_vdb(args)
     results = json.loads((opts.out / SECTION / "intervention.json").read_text(encoding="utf-8"))
