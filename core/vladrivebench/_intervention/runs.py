@@ -913,10 +913,9 @@ class InterventionRun:
         """Run ``chunk`` in lockstep, logging the episodes without a complete log; the complete ones run
         again unlogged (only when some are missing) so every episode has its first run's batch-mates."""
         from vladrivebench._engine.runner import LockstepEpisode, run_lockstep
-        from vladrivebench._logs.episodes import read_result
 
         report = report or (lambda episode: None)
-        complete = {e.key for e in chunk if (p := self.episode_path(e)).exists() and read_result(p) is not None}
+        complete = {e.key for e in chunk if self.complete(e)}
         if len(complete) == len(chunk):
             for episode in chunk:
                 report(episode)
@@ -997,10 +996,10 @@ class InterventionRun:
     def ensure_episode(self, episode: PlannedEpisode, policy: Any) -> Path:
         """Run one episode into its log unless a complete log is already there; return its path."""
         from vladrivebench._engine.runner import EpisodeFailure, run_episode
-        from vladrivebench._logs.episodes import EpisodeWriter, read_result
+        from vladrivebench._logs.episodes import EpisodeWriter
 
         path = self.episode_path(episode)
-        if path.exists() and read_result(path) is not None:
+        if self.complete(episode):
             return path
         path.unlink(missing_ok=True)
         model, sim = self.component("model"), self.component("simulator")
