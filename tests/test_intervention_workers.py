@@ -8,7 +8,7 @@ import dataclasses
 from pathlib import Path
 
 import pytest
-from vladrivebench._engine.executors import ProcessExecutor, SequentialExecutor
+from vladrivebench._engine.executors import PipelinedExecutor, ProcessExecutor, SequentialExecutor
 from vladrivebench._engine.registry import get_registry
 from vladrivebench._engine.sweep import ComponentSpec
 from vladrivebench._intervention.runs import InterventionConfig, InterventionRun
@@ -29,14 +29,16 @@ def logs(out: Path) -> dict[str, bytes]:
     return {p.name: p.read_bytes() for p in sorted((out / "episodes").glob("*.mcap"))}
 
 
-@pytest.mark.parametrize("model, controller, batch", [("scripted", "pid", 1), ("kv", "mpc", 2)],
-                         ids=["scripted-episodes", "kv-lockstep-chunks"])
-def test_workers_log_the_same_bytes_as_one_process(tmp_path, model, controller, batch):
-    # kv at --batch 2: 3 seeds × (baseline, selfsplice, accel) = 9 episodes in chunks of 8 → two jobs
+@pytest.mark.parametrize("model, controller, batch, executor",
+                         [("scripted", "pid", 1, ProcessExecutor), ("kv", "mpc", 2, ProcessExecutor),
+                          ("scripted", "pid", 1, PipelinedExecutor), ("kv", "mpc", 2, PipelinedExecutor)],
+                         ids=["scripted-episodes", "kv-lockstep-chunks", "scripted-pipelined", "kv-pipelined"])
+def test_workers_log_the_same_bytes_as_one_process(tmp_path, model, controller, batch, executor):
+    # kv at --batch 2: 3 seeds × (baseline, selfsplice, accel) = 9 episodes in chunks of 8 → two jobs; the
+    # pipelined executor runs them on two threads here, the model (its splices and gate) on its server
     run = config(model, controller, batch, seeds=3)
     one = InterventionRun(run, tmp_path / "one", registry=get_registry(), executor=SequentialExecutor()).run()
-    many = InterventionRun(run, tmp_path / "many", registry=get_registry(),
-                           executor=ProcessExecutor(workers=2)).run()
+    many = InterventionRun(run, tmp_path / "many", registry=get_registry(), executor=executor(workers=2)).run()
     assert len(logs(tmp_path / "one")) == 9
     assert logs(tmp_path / "one") == logs(tmp_path / "many")
     assert (tmp_path / "one" / "intervention.json").read_bytes() == (tmp_path / "many" / "intervention.json").read_bytes()

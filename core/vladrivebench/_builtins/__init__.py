@@ -51,10 +51,16 @@ def register_controllers(register):
 
 @hookimpl
 def register_executors(register):
-    from vladrivebench._engine.executors import ProcessExecutor, SequentialExecutor  # standard library only
+    from vladrivebench._engine.executors import (  # standard library only
+        PipelinedExecutor,
+        ProcessExecutor,
+        SequentialExecutor,
+    )
 
     register("sequential", SequentialExecutor, description="one episode after the other, in this process")
     register("process", ProcessExecutor, description="a pool of spawned worker processes (--workers N)")
+    register("pipelined", PipelinedExecutor,
+             description="--workers N batch jobs on threads here, their models in one model-server process")
 
 
 BUILTIN_METRICS: tuple[tuple[str, str, str], ...] = (

@@ -180,10 +180,10 @@ def _num(value: Any) -> str:
               help="Decode a step's open-loop conditions in one batch when the model has decode_batch.")
 @click.option("--batch", help="Planned episodes advancing in lockstep through one model (default 1; part of the "
               "configuration: results may differ from unbatched in floating point).")
-@click.option("--executor", help="sequential, process, or a plugin's (e.g. ray); default: process if --workers > 1. "
+@click.option("--executor", help="sequential, process, pipelined, or a plugin's (e.g. ray); default: process if --workers > 1. "
                                  "Workers run the batches (or episodes) in parallel: the same bytes as one process.")
 @click.option("--executor-opt", multiple=True, metavar="KEY=VALUE", help="Executor option (repeatable).")
-@click.option("--workers", type=int, help="Parallel workers (process: default = CPU count, at most 8).")
+@click.option("--workers", type=int, help="Parallel workers (process: default = CPU count, at most 8; pipelined: batch jobs in flight, default 2).")
 @click.option("--address", help="Cluster address for a distributed executor (e.g. --executor ray).")
 @click.option("--plan", is_flag=True, help="Print how many seeds each condition needs (from OUT's results, or "
               "after running this pilot).")

@@ -148,6 +148,8 @@ MAX_WORKERS = 512
 
 
 def _default_workers(executor_name: str) -> int:
+    if executor_name == "pipelined":  # two jobs in flight: one's model step while the other's harness runs
+        return 2
     return 1 if executor_name == "sequential" else max(1, min(os.cpu_count() or 1, 8))
 
 
@@ -225,9 +227,9 @@ def print_note(text: str) -> None:
 @click.option("--model-opt", multiple=True, metavar="KEY=VALUE", help="Model option (repeatable).")
 @click.option("--sim-opt", multiple=True, metavar="KEY=VALUE", help="Simulator option (repeatable).")
 @click.option("--controller-opt", multiple=True, metavar="KEY=VALUE", help="Controller option (repeatable).")
-@click.option("--executor", help="sequential, process, or a plugin's (e.g. ray); default: process if --workers > 1.")
+@click.option("--executor", help="sequential, process, pipelined, or a plugin's (e.g. ray); default: process if --workers > 1.")
 @click.option("--executor-opt", multiple=True, metavar="KEY=VALUE", help="Executor option (repeatable).")
-@click.option("--workers", type=int, help="Parallel workers (process: default = CPU count, at most 8).")
+@click.option("--workers", type=int, help="Parallel workers (process: default = CPU count, at most 8; pipelined: batch jobs in flight, default 2).")
 @click.option("--address", help="Cluster address for a distributed executor (e.g. --executor ray).")
 @click.option("--batch", help="Episodes advancing in lockstep through one model (default 1; part of the "
                               "configuration: results may differ from unbatched in floating point).")

@@ -4,10 +4,11 @@ An executor's ``run(worker, jobs)`` yields ``worker(job)`` for every job, in any
 picklable module-level function that reports its own failures as results; if a worker raises anyway, or
 its process dies, the executor yields a :class:`JobFailure` for that job and goes on with the others.
 
-Built in: ``sequential`` (in this process) and ``process`` (a pool of spawned worker processes; each
+Built in: ``sequential`` (in this process), ``process`` (a pool of spawned worker processes; each
 worker process lives for the whole sweep, so whatever the worker function caches — a loaded model, a
-simulator — is built once per process and reused across episodes). A distributed engine is a plugin
-(``vdb-executor-ray``).
+simulator — is built once per process and reused across episodes) and ``pipelined`` (jobs on threads of
+this process, their models in one model-server process, so the harness of one job runs while the model
+computes another's step). A distributed engine is a plugin (``vdb-executor-ray``).
 """
 
 from __future__ import annotations
@@ -200,3 +201,86 @@ def _die_with_parent() -> None:
             os._exit(1)
     except (OSError, AttributeError):
         pass
+
+
+PIPELINED_SWITCH_INTERVAL = 0.0005
+"""Seconds between the interpreter's forced thread switches while the ``pipelined`` executor runs."""
+
+
+class PipelinedExecutor:
+    """``workers`` jobs at a time on threads of this process, their models in one model-server process.
+
+    Each thread's models are :class:`~vladrivebench._engine.model_server.RemoteModel` proxies on its own
+    pipe to the server (:mod:`~vladrivebench._engine.model_server`). A thread waiting for its batched model
+    call holds no lock, so the other threads' harness (rendering, control, logging, simulation) runs
+    meanwhile: with a batched model and ``workers=2`` on two cores, the server computes one batch job's
+    step while the driver advances the other's lanes. A job's calls reach its own model instances in the
+    order it makes them, so the logs are byte-identical to a sequential run.
+    """
+
+    in_process = False
+
+    def __init__(self, workers: int = 2, start_method: str = "spawn"):
+        self.workers = check_workers(workers)
+        if start_method not in multiprocessing.get_all_start_methods():
+            raise ConfigError(f"executor 'pipelined': start_method {start_method!r} is not available here "
+                              f"(available: {', '.join(multiprocessing.get_all_start_methods())})")
+        self.start_method = start_method
+        self.server_stats: dict[str, float] = {}  # what the model server measured in the last run
+
+    def run(self, worker: Callable[[Any], Any], jobs: Iterable[Any]) -> Iterator[Any]:
+        import queue
+        import threading
+
+        from vladrivebench._engine.model_server import ModelServer
+        from vladrivebench._engine.sweep import serve_models_from
+
+        pending: queue.SimpleQueue = queue.SimpleQueue()
+        count = 0
+        for job in jobs:
+            pending.put(job)
+            count += 1
+        if not count:
+            return
+        threads = min(self.workers, count)
+        server = ModelServer(threads, self.start_method)
+        results: queue.SimpleQueue = queue.SimpleQueue()
+        stop = threading.Event()
+
+        def work(pipe: int) -> None:
+            with serve_models_from(server, pipe):
+                while not stop.is_set():
+                    try:
+                        job = pending.get_nowait()
+                    except queue.Empty:
+                        return
+                    try:
+                        result = worker(job)
+                    except Exception as exc:
+                        result = failure_of(job, exc)
+                    results.put(result)
+
+        pool = [threading.Thread(target=work, args=(i,), daemon=True, name=f"vdb-pipelined-{i}")
+                for i in range(threads)]
+        switch_interval = sys.getswitchinterval()
+        # A thread whose model step came back waits for the interpreter lock while another thread runs its
+        # harness; the default 5 ms until a forced switch would leave the server idle that long each time.
+        sys.setswitchinterval(PIPELINED_SWITCH_INTERVAL)
+        for thread in pool:
+            thread.start()
+        try:
+            for _ in range(count):
+                yield results.get()
+        finally:
+            stop.set()
+            for thread in pool:  # after the last result a thread only looks for more work
+                thread.join(timeout=1.0)
+            if not any(thread.is_alive() for thread in pool):  # no call in flight: the server may be asked
+                try:
+                    self.server_stats = server.stats()
+                except (EOFError, OSError):  # the server died: the jobs it held were reported as failed
+                    pass
+            server.stop()
+            for thread in pool:
+                thread.join(timeout=5)
+            sys.setswitchinterval(switch_interval)

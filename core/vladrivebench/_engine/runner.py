@@ -15,7 +15,8 @@ import dataclasses
 import math
 import traceback
 from collections.abc import Callable, Iterator, Mapping, Sequence
-from contextlib import contextmanager
+from contextlib import AbstractContextManager as ContextManager
+from contextlib import contextmanager, nullcontext
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -354,6 +355,8 @@ def run_lockstep(
     names: Mapping[str, str] | None = None,
     batch_policy: BatchStepPolicy | None = None,
     episode_batch_policy: EpisodeBatchPolicy | None = None,
+    harness_turn: ContextManager[Any] | None = None,
+    model_turn: ContextManager[Any] | None = None,
 ) -> None:
     """Run ``episodes`` with up to ``batch`` of them advancing step by step together.
 
@@ -367,6 +370,12 @@ def run_lockstep(
     ``episode_batch_policy`` (instead of ``batch_policy``) is a batched step that also receives the
     lanes' episodes. A ``group`` of episodes joins only when it fits in the free lanes, the earlier
     episodes waiting with it; a group larger than ``batch`` is a :class:`VdbError`.
+
+    ``harness_turn`` and ``model_turn`` (reusable context managers) are entered around each step's harness
+    (the lanes' control, logging and simulation, and the joining of new episodes) and around its model
+    calls: the ``pipelined`` executor passes two locks shared by its threads, so that one batch's harness
+    runs while the model server computes another batch's whole step, rather than the threads' model calls
+    queueing behind each other and their harness contending at once.
     """
     names = {"model": "model", "simulator": "simulator", "controller": "controller", **(names or {})}
     _check_groups(episodes, batch)
@@ -378,20 +387,25 @@ def run_lockstep(
     queue.reverse()
     lanes: list[_Lane | None] = [None] * max(1, batch)
     components: dict[int, tuple[Any, Any, Any]] = {}
+    harness_turn, model_turn = harness_turn or nullcontext(), model_turn or nullcontext()
+    outputs: list[StepOutput | EpisodeFailure] = []
+    active: list[tuple[int, _Lane]] = []
     while True:
-        _fill_lanes(lanes, queue, components, make_lane, names, done)
+        with harness_turn:
+            for (i, lane), output in zip(active, outputs, strict=True):
+                finished = _advance_lane(lane, output, names)
+                if finished is not None:
+                    lanes[i] = None
+                    if isinstance(finished, EpisodeFailure) and finished.component != "model":
+                        components.pop(i, None)  # ask make_lane again for that lane before its next episode
+                    done(lane.episode, finished, lane.writer)
+            _fill_lanes(lanes, queue, components, make_lane, names, done)
         active = [(i, lane) for i, lane in enumerate(lanes) if lane is not None]
         if not active:
             return
         active_lanes[:] = [lane for _, lane in active]
-        outputs = _lockstep_outputs([lane for _, lane in active], names, batch_policy)
-        for (i, lane), output in zip(active, outputs, strict=True):
-            finished = _advance_lane(lane, output, names)
-            if finished is not None:
-                lanes[i] = None
-                if isinstance(finished, EpisodeFailure) and finished.component != "model":
-                    components.pop(i, None)  # ask make_lane again for that lane before its next episode
-                done(lane.episode, finished, lane.writer)
+        with model_turn:
+            outputs = _lockstep_outputs([lane for _, lane in active], names, batch_policy)
 
 
 def _check_groups(episodes: Sequence[LockstepEpisode], batch: int) -> None:

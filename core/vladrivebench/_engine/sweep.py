@@ -22,8 +22,10 @@ import os
 import platform
 import re
 import tempfile
+import threading
 import time
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -157,6 +159,7 @@ class RegistrySpec:
 
 
 _WORKER_REGISTRIES: dict[str, Registry] = {}
+_REGISTRIES_LOCK = threading.Lock()
 
 
 def _registry_for(spec: RegistrySpec | Registry | None) -> Registry:
@@ -165,9 +168,10 @@ def _registry_for(spec: RegistrySpec | Registry | None) -> Registry:
     if isinstance(spec, Registry):  # an in-process executor: the driver's own registry
         return spec
     key = spec.key()
-    if key not in _WORKER_REGISTRIES:
-        _WORKER_REGISTRIES[key] = spec.build()
-    return _WORKER_REGISTRIES[key]
+    with _REGISTRIES_LOCK:  # the pipelined executor's threads share this process's registries
+        if key not in _WORKER_REGISTRIES:
+            _WORKER_REGISTRIES[key] = spec.build()
+        return _WORKER_REGISTRIES[key]
 
 
 # -- one episode (runs in a worker) -------------------------------------------------------------------
@@ -203,24 +207,62 @@ class EpisodeOutcome:
     seconds: float = 0.0
 
 
-# Components built in this process, reused across episodes: kind → (key, component).
-_COMPONENTS: dict[str, tuple[str, Any]] = {}
+class _ThreadComponents(threading.local):
+    """Components built in this thread of this process, reused across episodes: ``kind → (key, component)``
+    and ``(kind, lane) → (key, component)``; and, under the ``pipelined`` executor, the model server and
+    pipe this thread's models live on."""
+
+    def __init__(self):
+        self.by_kind: dict[str, tuple[str, Any]] = {}
+        self.by_lane: dict[tuple[str, int], tuple[str, Any]] = {}
+        self.model_server: tuple[Any, int] | None = None
+
+
+_THREAD = _ThreadComponents()
+
+
+@contextmanager
+def serve_models_from(server: Any, pipe: int) -> Iterator[None]:
+    """In this thread, while the block runs, build models on ``server`` (a
+    :class:`~vladrivebench._engine.model_server.ModelServer`) over its pipe ``pipe``; close them after."""
+    _THREAD.model_server = (server, pipe)
+    try:
+        yield
+    finally:
+        release_components()
+        _THREAD.model_server = None
+
+
+def create_component(registry: Registry, spec: Any) -> Any:
+    """A new component of ``spec`` (kind, name, options); a model is built on this thread's model server
+    when the thread has one (:func:`serve_models_from`)."""
+    if spec.kind == "model" and _THREAD.model_server is not None:
+        server, pipe = _THREAD.model_server
+        return server.model(pipe, RegistrySpec.of(registry), spec)
+    return registry.create(spec.kind, spec.name, spec.options)
+
+
+def pipeline_turns() -> dict[str, Any]:
+    """``run_lockstep``'s ``harness_turn`` and ``model_turn`` for this thread: the model server's locks
+    under the ``pipelined`` executor, none otherwise."""
+    server = _THREAD.model_server[0] if _THREAD.model_server else None
+    return {"harness_turn": server and server.harness_turn, "model_turn": server and server.model_turn}
 
 
 def _component(registry: Registry, spec: ComponentSpec) -> Any:
     key = f"{id(registry)}:{spec.key()}"
-    cached = _COMPONENTS.get(spec.kind)
+    cached = _THREAD.by_kind.get(spec.kind)
     if cached is not None and cached[0] == key:
         return cached[1]
     forget_component(spec.kind)
-    component = registry.create(spec.kind, spec.name, spec.options)
-    _COMPONENTS[spec.kind] = (key, component)
+    component = create_component(registry, spec)
+    _THREAD.by_kind[spec.kind] = (key, component)
     return component
 
 
 def forget_component(kind: str) -> None:
-    """Drop (and close, if it can be closed) the cached component of ``kind`` in this process."""
-    cached = _COMPONENTS.pop(kind, None)
+    """Drop (and close, if it can be closed) the cached component of ``kind`` in this thread."""
+    cached = _THREAD.by_kind.pop(kind, None)
     close = getattr(cached[1], "close", None) if cached else None
     if callable(close):
         try:
@@ -231,9 +273,9 @@ def forget_component(kind: str) -> None:
 
 def release_components() -> None:
     """Close and drop every component this process built (end of an in-process sweep)."""
-    for kind in list(_COMPONENTS):
+    for kind in list(_THREAD.by_kind):
         forget_component(kind)
-    for kind, lane in list(_LANES):
+    for kind, lane in list(_THREAD.by_lane):
         _forget_lane(kind, lane)
 
 
@@ -300,20 +342,17 @@ def make_batch_jobs(jobs: Sequence[EpisodeJob], todo: Sequence[EpisodeJob], batc
             for group in groups if any(j.episode_id in wanted for j in group)]
 
 
-_LANES: dict[tuple[str, int], tuple[str, Any]] = {}
-
-
 def _lane_component(registry: Registry, spec: ComponentSpec, lane: int) -> Any:
     """Lane ``lane``'s own instance of a component (lane 0 shares the process's cached one)."""
     if lane == 0:
         return _component(registry, spec)
     key = f"{id(registry)}:{spec.key()}"
-    cached = _LANES.get((spec.kind, lane))
+    cached = _THREAD.by_lane.get((spec.kind, lane))
     if cached is not None and cached[0] == key:
         return cached[1]
     _forget_lane(spec.kind, lane)
-    component = registry.create(spec.kind, spec.name, spec.options)
-    _LANES[(spec.kind, lane)] = (key, component)
+    component = create_component(registry, spec)
+    _THREAD.by_lane[(spec.kind, lane)] = (key, component)
     return component
 
 
@@ -321,7 +360,7 @@ def _forget_lane(kind: str, lane: int) -> None:
     if lane == 0:
         forget_component(kind)
         return
-    cached = _LANES.pop((kind, lane), None)
+    cached = _THREAD.by_lane.pop((kind, lane), None)
     close = getattr(cached[1], "close", None) if cached else None
     if callable(close):
         try:
@@ -387,7 +426,9 @@ def run_batch_job(job: BatchJob) -> list[EpisodeOutcome]:
                 for ep in job.episodes]
     names = {"model": first.model.name, "simulator": first.simulator.name, "controller": first.controller.name}
     try:
-        run_lockstep(episodes, job.batch, make_lane=make_lane, done=done, names=names)
+        served = batched and _THREAD.model_server is not None
+        run_lockstep(episodes, job.batch, make_lane=make_lane, done=done, names=names,
+                     batch_policy=_served_own_cot_policy if served else None, **pipeline_turns())
     except Exception as exc:  # a writer or the loop itself broke: the episodes not yet done fail
         error, details = _describe_exception(exc)
         for eid in sorted(job.todo - set(outcomes)):
@@ -395,6 +436,13 @@ def run_batch_job(job: BatchJob) -> list[EpisodeOutcome]:
     if any(o.status == "failed" and o.component == "model" for o in outcomes.values()):
         forget_component("model")
     return [outcomes[eid] for eid in sorted(outcomes)]
+
+
+def _served_own_cot_policy(model: Any, observations: Sequence[Any], seeds: Sequence[int]) -> list[Any]:
+    """The default batched step run on the model server, one round trip for the CoTs and the actions."""
+    from vladrivebench._engine.runner import own_cot_batch_policy
+
+    return model.run_policy(own_cot_batch_policy, observations, seeds)
 
 
 def episode_meta(job: EpisodeJob, model: Any, simulator: Any, registry: Registry | None = None) -> dict[str, Any]:

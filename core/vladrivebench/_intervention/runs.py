@@ -664,7 +664,9 @@ class InterventionRun:
         spec = {"model": self.config.model, "simulator": self.config.simulator,
                 "controller": self.config.controller}[kind]
         if kind not in self._components:
-            self._components[kind] = self.registry.create(spec.kind, spec.name, spec.options)
+            from vladrivebench._engine.sweep import create_component  # on the model server when pipelined
+
+            self._components[kind] = create_component(self.registry, spec)
         return self._components[kind]
 
     def close(self) -> None:
@@ -913,6 +915,7 @@ class InterventionRun:
         """Run ``chunk`` in lockstep, logging the episodes without a complete log; the complete ones run
         again unlogged (only when some are missing) so every episode has its first run's batch-mates."""
         from vladrivebench._engine.runner import LockstepEpisode, run_lockstep
+        from vladrivebench._engine.sweep import pipeline_turns
 
         report = report or (lambda episode: None)
         complete = {e.key for e in chunk if self.complete(e)}
@@ -954,7 +957,7 @@ class InterventionRun:
         names = {"model": c.model.name, "simulator": c.simulator.name, "controller": c.controller.name}
         try:
             run_lockstep(episodes, c.batch, make_lane=self.lane, done=done, names=names,
-                         episode_batch_policy=step_batch)
+                         episode_batch_policy=step_batch, **pipeline_turns())
         except BaseException as exc:
             for writer in writers.values():  # abandoned: their partial logs are removed
                 writer.__exit__(type(exc), exc, None)
