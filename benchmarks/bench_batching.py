@@ -2,7 +2,7 @@
 the renderer alone, batched-vs-unbatched difference and the demo's wall time, all measured in one run.
 
     python benchmarks/bench_batching.py [--steps 20] [--sizes 1,4,16,64] [--repeats 1] [--sweep-seconds 5]
-                                        [--skip-sweep] [--skip-demo]
+                                        [--skip-sweep] [--skip-demo] [--skip-pipelined] [--pipelined-steps 40]
 
 1. Closed-loop steps per second of ``kv`` and ``qa`` on the kinematic simulator (camera rendered, MPC
    controller, every step logged to MCAP) at B = 1 (today's per-episode path, ``run_episode``) and at
@@ -16,6 +16,10 @@ the renderer alone, batched-vs-unbatched difference and the demo's wall time, al
    4 seeds with ``kv``, each cut to ``--sweep-seconds``), over the steps both runs share, and how many
    CoTs differ.
 5. ``vdb demo``'s wall time (its episodes, as the demo declares its batch size).
+6. (before 1, per model) the same B = 16 sweep sequentially and on the ``pipelined`` executor (the model in a
+   model-server process, two batch jobs' harness on threads here): episode-steps per second of both, the
+   pipelined rate over the server's span, the share of that span the model server waited (the harness on
+   the model's critical path) and whether the logs are the same bytes.
 
 The machine may be shared: read the ratios of one run rather than absolute numbers.
 """
@@ -136,6 +140,35 @@ def closed_loop(model_name: str, batch: int, steps: int, out: Path) -> tuple[flo
     return total_steps / wall, 1.0 - timer.seconds["model"] / wall, timer.shares(wall)
 
 
+def pipelined_sweep(model_name: str, batch: int, steps: int, out: Path) -> dict[str, float]:
+    """The same sweep (P.1 × two batch jobs' worth of seeds, ``steps`` steps each) run sequentially and on
+    the ``pipelined`` executor: episode-steps per second of each (wall time, the pipelined one including
+    its model server's start), the pipelined one's rate over the server's span (first model call to last),
+    the share of that span the server was not in a model call (the harness, transfers and turns the model
+    waited for), and whether the logs are the same bytes."""
+    from vladrivebench._engine.executors import PipelinedExecutor, SequentialExecutor
+    from vladrivebench._engine.registry import get_registry
+    from vladrivebench._engine.sweep import BATCH_JOB_FACTOR, ComponentSpec, RunConfig, run_sweep
+
+    registry = get_registry()
+    seeds = tuple(range(2 * BATCH_JOB_FACTOR * batch))
+    config = RunConfig(ComponentSpec("model", model_name), ComponentSpec("simulator", "kinematic"),
+                       ComponentSpec("controller", "mpc"), (scenario("P.1", steps / 10.0),), seeds, batch=batch)
+    rates, executor = {}, PipelinedExecutor(workers=2)
+    for name, chosen in (("sequential", SequentialExecutor()), ("pipelined", executor)):
+        started = time.perf_counter()
+        summary = run_sweep(config, out / f"{model_name}-{name}", executor=chosen, registry=registry)
+        wall = time.perf_counter() - started
+        lane_steps = sum(result["steps"] for result in summary.results.values())
+        rates[name] = lane_steps / wall
+    stats = executor.server_stats
+    span = stats["last_call"] - stats["first_call"]
+    same = all(path.read_bytes() == (out / f"{model_name}-pipelined" / "episodes" / path.name).read_bytes()
+               for path in (out / f"{model_name}-sequential" / "episodes").glob("*.mcap"))
+    return {"sequential": rates["sequential"], "pipelined": rates["pipelined"], "span_rate": lane_steps / span,
+            "waiting": 1.0 - stats["model_seconds"] / span, "same_bytes": same}
+
+
 def render_milliseconds(frames: int = 30) -> dict[str, float]:
     """CPU milliseconds per step of the camera rendering alone, along P.1 (suburban) and S.3 (urban junction),
     for the default front camera and the four-camera ``alpamayo`` rig."""
@@ -205,10 +238,14 @@ def main() -> None:
     parser.add_argument("--skip-sweep", action="store_true")
     parser.add_argument("--sweep-seconds", type=float, default=5.0, help="episode length limit in part 3")
     parser.add_argument("--skip-demo", action="store_true")
+    parser.add_argument("--skip-pipelined", action="store_true", help="skip the pipelined-executor sweeps")
+    parser.add_argument("--pipelined-steps", type=int, default=40,
+                        help="steps per episode of the pipelined-executor sweeps (the server's start is in their time)")
     args = parser.parse_args()
     sizes = [int(s) for s in args.sizes.split(",")]
     with tempfile.TemporaryDirectory() as tmp:
         for model in ("kv", "qa"):
+            pipelined = None if args.skip_pipelined else pipelined_sweep(model, 16, args.pipelined_steps, Path(tmp))
             runs = {batch: [] for batch in sizes}
             for _ in range(args.repeats):  # sizes interleaved, so a change of the machine's load hits them all
                 for batch in sizes:
@@ -222,6 +259,14 @@ def main() -> None:
                 print(f"{model} B={batch:>3}: {rate:7.1f} episode-steps/s  ×{rate / base:5.2f} vs B={sizes[0]}  "
                       f"(model time alone ×{model_rate / model_base:5.2f})  harness {100 * harness:4.1f} % of the "
                       f"step: {breakdown} %", flush=True)
+            if pipelined is not None:
+                p = pipelined
+                print(f"{model} B= 16 sweep, {2 * 4 * 16} episodes of P.1 × {args.pipelined_steps} steps: sequential {p['sequential']:6.1f} "
+                      f"episode-steps/s, pipelined {p['pipelined']:6.1f} (×{p['pipelined'] / p['sequential']:4.2f}; "
+                      f"×{p['pipelined'] / base:4.2f} vs B={sizes[0]} above), over the model server's span "
+                      f"{p['span_rate']:6.1f} (×{p['span_rate'] / base:4.2f}); the server out of a model call "
+                      f"{100 * p['waiting']:4.1f} % of its span (harness, transfers and turns on the model's "
+                      f"critical path); logs {'the same bytes' if p['same_bytes'] else 'DIFFER'}", flush=True)
     rendering = render_milliseconds()
     print(f"camera rendering alone (CPU): {rendering['front']:.2f} ms per step for the front camera (160×80), "
           f"{rendering['alpamayo']:.2f} ms for the alpamayo rig (4 × 576×320)", flush=True)

@@ -194,3 +194,15 @@ def test_log_images_flag(tmp_path, capsys):
     assert vdb(capsys, *BASE, "--scenarios", "road", "--seeds", 1, "--out", tmp_path, "--quiet", "--log-images")[0] == 0
     episode = read_episode(tmp_path / "episodes" / "echo__road__s0.mcap")
     assert all(s.image_png is not None for s in episode.steps) and episode.meta["config"]["log_images"] is True
+
+
+def test_the_pipelined_executor_gives_the_bytes_of_a_sequential_batched_run(tmp_path, capsys):
+    common = [*BASE, "--scenarios", "road,car,long", "--seeds", 3, "--batch", 2, "--quiet"]
+    assert vdb(capsys, *common, "--out", tmp_path / "seq")[0] == 0
+    assert vdb(capsys, *common, "--out", tmp_path / "pipe", "--executor", "pipelined")[0] == 0
+    manifest = json.loads((tmp_path / "pipe" / "run.json").read_text())
+    assert manifest["executor"] == {"name": "pipelined", "workers": 2}
+    assert snapshot(tmp_path / "seq" / "episodes") == snapshot(tmp_path / "pipe" / "episodes")
+    code, _, err = vdb(capsys, *common, "--out", tmp_path / "bad", "--executor", "pipelined", "--workers", 0)
+    assert code == 2 and "--workers must be a whole number from 1 to" in one_line_error(err)
+    assert not (tmp_path / "bad").exists()

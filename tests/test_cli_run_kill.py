@@ -1,5 +1,5 @@
 """`vdb run` killed with SIGKILL at random moments, then started again with the same command, ends with
-episode logs byte-identical to an uninterrupted run (sequential and process pool)."""
+episode logs byte-identical to an uninterrupted run (sequential, process pool, pipelined)."""
 
 from __future__ import annotations
 
@@ -43,8 +43,9 @@ def wait_for_episodes(out: Path, count: int, timeout: float = 30.0) -> None:
         time.sleep(0.005)
 
 
-@pytest.mark.parametrize(("executor", "attempts", "span"), [(("--workers", 1), 3, 1.0), (("--workers", 2), 3, 3.0)],
-                         ids=["sequential", "process"])
+@pytest.mark.parametrize(("executor", "attempts", "span"), [(("--workers", 1), 3, 1.0), (("--workers", 2), 3, 3.0),
+                                                         (("--executor", "pipelined"), 3, 3.0)],
+                         ids=["sequential", "process", "pipelined"])
 def test_killed_runs_resume_to_byte_identical_results(tmp_path, executor, attempts, span):
     reference = tmp_path / "reference"
     subprocess.run(fake_vdb(*BASE, *KILL_ARGS, "--out", reference), check=True, capture_output=True)
