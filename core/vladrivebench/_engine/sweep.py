@@ -427,8 +427,11 @@ def run_batch_job(job: BatchJob) -> list[EpisodeOutcome]:
     names = {"model": first.model.name, "simulator": first.simulator.name, "controller": first.controller.name}
     try:
         served = batched and _THREAD.model_server is not None
+        turns = pipeline_turns()
+        if served:  # a step is one request: it may queue at the server while another job's step computes
+            turns["model_turn"] = None
         run_lockstep(episodes, job.batch, make_lane=make_lane, done=done, names=names,
-                     batch_policy=_served_own_cot_policy if served else None, **pipeline_turns())
+                     batch_policy=_served_own_cot_policy if served else None, **turns)
     except Exception as exc:  # a writer or the loop itself broke: the episodes not yet done fail
         error, details = _describe_exception(exc)
         for eid in sorted(job.todo - set(outcomes)):
