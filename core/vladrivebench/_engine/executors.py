@@ -50,6 +50,22 @@ def check_workers(workers: Any) -> int:
     return workers
 
 
+def check_start_method(executor: str, start_method: Any) -> str:
+    """``start_method`` if this platform's multiprocessing has it, else a one-line :class:`ConfigError`."""
+    if start_method not in multiprocessing.get_all_start_methods():
+        raise ConfigError(f"executor {executor!r}: start_method {start_method!r} is not available here "
+                          f"(available: {', '.join(multiprocessing.get_all_start_methods())})")
+    return start_method
+
+
+def stop_process(process: Any, timeout: float = 5.0) -> None:
+    """Wait up to ``timeout`` seconds for ``process`` to end (it was asked to), then kill it."""
+    process.join(timeout=timeout)
+    if process.is_alive():
+        process.kill()
+        process.join()
+
+
 class SequentialExecutor:
     """Runs every job in this process, one after the other (the reference for determinism)."""
 
@@ -80,10 +96,7 @@ class ProcessExecutor:
 
     def __init__(self, workers: int = 2, start_method: str = "spawn"):
         self.workers = check_workers(workers)
-        if start_method not in multiprocessing.get_all_start_methods():
-            raise ConfigError(f"executor 'process': start_method {start_method!r} is not available here "
-                              f"(available: {', '.join(multiprocessing.get_all_start_methods())})")
-        self.start_method = start_method
+        self.start_method = check_start_method("process", start_method)
 
     def run(self, worker: Callable[[Any], Any], jobs: Iterable[Any]) -> Iterator[Any]:
         pending = deque(jobs)
@@ -158,10 +171,7 @@ class _Slot:
             self.conn.send(None)
         except (OSError, ValueError):
             pass
-        self.process.join(timeout=5)
-        if self.process.is_alive():
-            self.process.kill()
-            self.process.join()
+        stop_process(self.process)
         self.conn.close()
 
 
@@ -222,10 +232,7 @@ class PipelinedExecutor:
 
     def __init__(self, workers: int = 2, start_method: str = "spawn"):
         self.workers = check_workers(workers)
-        if start_method not in multiprocessing.get_all_start_methods():
-            raise ConfigError(f"executor 'pipelined': start_method {start_method!r} is not available here "
-                              f"(available: {', '.join(multiprocessing.get_all_start_methods())})")
-        self.start_method = start_method
+        self.start_method = check_start_method("pipelined", start_method)
         self.server_stats: dict[str, float] = {}  # what the model server measured in the last run
 
     def run(self, worker: Callable[[Any], Any], jobs: Iterable[Any]) -> Iterator[Any]:

@@ -83,15 +83,14 @@ class ModelServer:
         return dict(_request(self.pipes[0], ("stats",)))
 
     def stop(self) -> None:
+        from vladrivebench._engine.executors import stop_process
+
         for conn in self.pipes:
             try:
                 conn.send_bytes(pickle.dumps(None))
             except (OSError, ValueError):
                 pass
-        self.process.join(timeout=5)
-        if self.process.is_alive():
-            self.process.kill()
-            self.process.join()
+        stop_process(self.process)
         for conn in self.pipes:
             conn.close()
 
