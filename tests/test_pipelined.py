@@ -15,6 +15,8 @@ import signal
 import numpy as np
 import pytest
 import runner_fakes as fakes
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from vladrivebench._engine import sweep
 from vladrivebench._engine.executors import PipelinedExecutor, SequentialExecutor
 from vladrivebench._engine.model_server import ModelServer, RemoteModel, StateHandle
@@ -22,6 +24,7 @@ from vladrivebench._engine.registry import Registry
 from vladrivebench._engine.sweep import ComponentSpec, RegistrySpec, RunConfig, run_sweep
 from vladrivebench.errors import ConfigError
 from vladrivebench.protocols import BatchedModel, CoTExtras, VLAModel
+from vladrivebench.records import CoT
 
 FAKES = Registry([("fakes", fakes)], entry_points=False)
 
@@ -165,3 +168,89 @@ def test_bad_workers_are_one_line(workers):
 def test_an_unknown_start_method_is_one_line():
     with pytest.raises(ConfigError, match="start_method 'telepathy' is not available"):
         PipelinedExecutor(start_method="telepathy")
+
+
+# -- the rules of the transport, as properties -----------------------------------------------------------
+def nested(leaves):
+    """Nested lists, tuples and dicts (string keys) of ``leaves``."""
+    return st.recursive(leaves, lambda inner: st.one_of(
+        st.lists(inner, max_size=4), st.lists(inner, max_size=4).map(tuple),
+        st.dictionaries(st.text(max_size=3), inner, max_size=3)), max_leaves=12)
+
+
+def flatten(value):
+    if isinstance(value, (list, tuple)):
+        return [leaf for item in value for leaf in flatten(item)]
+    if isinstance(value, dict):
+        return [leaf for item in value.values() for leaf in flatten(item)]
+    return [value]
+
+
+GENERATOR_OR_NOT = st.one_of(st.integers(0, 2**32 - 1).map(np.random.default_rng), st.integers(), st.none(),
+                             st.text(max_size=4))
+
+
+@settings(max_examples=80, deadline=None)
+@given(nested(GENERATOR_OR_NOT))
+def test_the_generators_sent_back_are_every_generator_in_the_call_in_order(value):
+    from vladrivebench._engine.model_server import _generators
+
+    found = _generators(value)
+    assert [id(g) for g in found] == [id(x) for x in flatten(value) if isinstance(x, np.random.Generator)]
+
+
+COTS = st.builds(lambda text, n: CoT(text, state=("state", n)), st.text(max_size=5), st.integers())
+
+
+@settings(max_examples=80, deadline=None)
+@given(nested(st.one_of(COTS, st.integers(), st.none())))
+def test_cot_states_stay_on_the_server_and_come_back_as_they_were(value):
+    from vladrivebench._engine.model_server import _Hosted
+
+    host = _Hosted(model=None)
+    sent = host.outgoing(value)
+    for leaf in flatten(sent):
+        assert not isinstance(leaf, CoT) or isinstance(leaf.state, StateHandle)
+    back = host.incoming(sent)
+    originals, returned = flatten(value), flatten(back)
+    assert len(originals) == len(returned)
+    for a, b in zip(originals, returned, strict=True):
+        if isinstance(a, CoT):
+            assert b.text == a.text and b.state is a.state and b.spliced == a.spliced
+        elif not isinstance(a, dict):
+            assert b == a
+
+
+def test_the_oldest_cot_states_are_dropped_past_the_limit(monkeypatch):
+    from vladrivebench._engine import model_server
+
+    monkeypatch.setattr(model_server, "HELD_STATES", 3)
+    host = model_server._Hosted(model=None)
+    sent = [host.outgoing(CoT(str(i), state=i)) for i in range(5)]
+    assert [host.incoming(cot).state for cot in sent[2:]] == [2, 3, 4]
+    with pytest.raises(model_server.RemoteCallError, match="no longer holds this CoT's state"):
+        host.incoming(sent[1])
+
+
+@pytest.fixture(scope="module")
+def fake_server():
+    serving = ModelServer(1)
+    yield serving
+    serving.stop()
+
+
+@settings(max_examples=12, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(1, 4))
+def test_a_remote_call_advances_the_callers_rngs_as_a_local_call_does(fake_server, seed, lanes):
+    registry_spec = RegistrySpec.of(FAKES)
+    remote = fake_server.model(0, registry_spec, ComponentSpec("model", "echo-batched"))
+    local = FAKES.create("model", "echo-batched")
+    simulator = FAKES.create("simulator", "line")
+    observations = [simulator.reset(fakes.SCENARIOS[i % 3], i) for i in range(lanes)]
+    mine = [np.random.default_rng(seed + i) for i in range(lanes)]
+    theirs = [np.random.default_rng(seed + i) for i in range(lanes)]
+    cots = remote.generate_cot_batch(observations, mine)
+    assert [c.text for c in cots] == [c.text for c in local.generate_cot_batch(observations, theirs)]
+    assert [g.bit_generator.state for g in mine] == [g.bit_generator.state for g in theirs]
+    assert [g.random() for g in mine] == [g.random() for g in theirs]
+    remote.close()

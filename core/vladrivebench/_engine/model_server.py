@@ -187,6 +187,8 @@ class _Hosted:
             return [self.outgoing(item) for item in value]
         if isinstance(value, tuple):
             return tuple(self.outgoing(item) for item in value)
+        if isinstance(value, dict):
+            return {key: self.outgoing(item) for key, item in value.items()}
         return value
 
     def incoming(self, value: Any) -> Any:
