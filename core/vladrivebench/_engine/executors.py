@@ -277,7 +277,7 @@ class PipelinedExecutor:
             thread.start()
         try:
             for _ in range(count):
-                yield results.get()
+                yield _interruptible_get(results)
         finally:
             stop.set()
             for thread in pool:  # after the last result a thread only looks for more work
@@ -291,3 +291,15 @@ class PipelinedExecutor:
             for thread in pool:
                 thread.join(timeout=5)
             sys.setswitchinterval(switch_interval)
+
+
+def _interruptible_get(results: Any) -> Any:
+    """The next item of a ``queue.SimpleQueue``, waking up often enough for Ctrl-C to reach this thread
+    (a get without a timeout blocks signals until an item arrives)."""
+    import queue
+
+    while True:
+        try:
+            return results.get(timeout=0.2)
+        except queue.Empty:
+            continue
