@@ -90,3 +90,22 @@ def test_killing_only_the_driver_takes_the_workers_down_too(tmp_path):
     resumed = subprocess.run(command, capture_output=True, text=True)
     assert resumed.returncode == 0, resumed.stderr
     assert not list(out.glob("episodes/*.partial"))
+
+
+@pytest.mark.parametrize("executor", [("--workers", 1), ("--workers", 2), ("--executor", "pipelined")],
+                         ids=["sequential", "process", "pipelined"])
+def test_ctrl_c_stops_a_run_in_one_line_and_the_same_command_finishes_it(tmp_path, executor):
+    slow = ("--scenarios", "road,long", "--seeds", 2, "--model-opt", "sleep=0.03", "--quiet")  # seconds a run
+    reference = tmp_path / "reference"
+    subprocess.run(fake_vdb(*BASE, *slow, "--out", reference), check=True, capture_output=True)
+    out = tmp_path / "out"
+    command = fake_vdb(*BASE, *slow, *executor, "--out", out)
+    process = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    wait_for(out / "run.json")
+    wait_for_episodes(out, 1)
+    process.send_signal(signal.SIGINT)
+    _, err = process.communicate(timeout=30)
+    assert process.returncode == 130 and err.strip().splitlines() == ["vdb: error: interrupted"]
+    resumed = subprocess.run(command, capture_output=True, text=True)
+    assert resumed.returncode == 0, resumed.stderr
+    assert snapshot(out / "episodes") == snapshot(reference / "episodes")
