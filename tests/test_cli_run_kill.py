@@ -100,7 +100,10 @@ def test_ctrl_c_stops_a_run_in_one_line_and_the_same_command_finishes_it(tmp_pat
     subprocess.run(fake_vdb(*BASE, *slow, "--out", reference), check=True, capture_output=True)
     out = tmp_path / "out"
     command = fake_vdb(*BASE, *slow, *executor, "--out", out)
-    process = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    # A shell that starts the suite in the background hands its children SIGINT ignored, and Python then
+    # installs no Ctrl-C handler: give the run the default disposition, as a terminal would.
+    process = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                               preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     wait_for(out / "run.json")
     wait_for_episodes(out, 1)
     process.send_signal(signal.SIGINT)
