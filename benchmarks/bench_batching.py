@@ -165,8 +165,8 @@ def pipelined_sweep(model_name: str, batch: int, steps: int, out: Path) -> dict[
     span = stats["last_call"] - stats["first_call"]
     same = all(path.read_bytes() == (out / f"{model_name}-pipelined" / "episodes" / path.name).read_bytes()
                for path in (out / f"{model_name}-sequential" / "episodes").glob("*.mcap"))
-    return {"sequential": rates["sequential"], "pipelined": rates["pipelined"], "span_rate": lane_steps / span,
-            "waiting": 1.0 - stats["model_seconds"] / span, "same_bytes": same}
+    return {"episodes": len(seeds), "sequential": rates["sequential"], "pipelined": rates["pipelined"],
+            "span_rate": lane_steps / span, "waiting": 1.0 - stats["model_seconds"] / span, "same_bytes": same}
 
 
 def render_milliseconds(frames: int = 30) -> dict[str, float]:
@@ -261,7 +261,7 @@ def main() -> None:
                       f"step: {breakdown} %", flush=True)
             if pipelined is not None:
                 p = pipelined
-                print(f"{model} B= 16 sweep, {2 * 4 * 16} episodes of P.1 × {args.pipelined_steps} steps: sequential {p['sequential']:6.1f} "
+                print(f"{model} B= 16 sweep, {p['episodes']} episodes of P.1 × {args.pipelined_steps} steps: sequential {p['sequential']:6.1f} "
                       f"episode-steps/s, pipelined {p['pipelined']:6.1f} (×{p['pipelined'] / p['sequential']:4.2f}; "
                       f"×{p['pipelined'] / base:4.2f} vs B={sizes[0]} above), over the model server's span "
                       f"{p['span_rate']:6.1f} (×{p['span_rate'] / base:4.2f}); the server out of a model call "

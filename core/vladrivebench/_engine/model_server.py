@@ -17,6 +17,7 @@ generators advance exactly as a local call would advance them.
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import pickle
 import threading
 import time
@@ -33,6 +34,7 @@ HELD_STATES = 4096
 
 _MAX_ATTRIBUTE_BYTES = 65536
 _RUN_POLICY = "<run policy>"  # not a method name: a request to run a policy function beside the model
+_INSTANCE_NUMBERS = itertools.count(1)  # the server process's model instances
 
 
 @dataclasses.dataclass(frozen=True)
@@ -77,8 +79,7 @@ class ModelServer:
 
     def stats(self) -> dict[str, float]:
         """What the server measured over all pipes (for the benchmark): ``model_seconds`` in the models'
-        methods, ``handling_seconds`` from receiving a request to having sent its reply, and ``first_call``
-        / ``last_call`` (``time.perf_counter`` of this machine) when its first model call started and
+        methods (and policies run beside them), and ``first_call`` / ``last_call`` (``time.perf_counter`` of this machine) when its first model call started and
         its last one ended. Ask only while no caller thread has a call in flight."""
         return dict(_request(self.pipes[0], ("stats",)))
 
@@ -153,15 +154,23 @@ def _request(conn: Any, message: tuple) -> Any:
     raise error from RemoteTraceback(remote_traceback)
 
 
+def _map_nested(value: Any, leaf: Callable[[Any], Any]) -> Any:
+    """``value`` with ``leaf`` applied to everything inside its nested lists, tuples and dict values, in
+    order (what crosses the pipe: arguments, results)."""
+    if isinstance(value, list):
+        return [_map_nested(item, leaf) for item in value]
+    if isinstance(value, tuple):
+        return tuple(_map_nested(item, leaf) for item in value)
+    if isinstance(value, dict):
+        return {key: _map_nested(item, leaf) for key, item in value.items()}
+    return leaf(value)
+
+
 def _generators(value: Any) -> list[np.random.Generator]:
     """The numpy Generators in ``value`` (nested tuples, lists and dict values), in a fixed order."""
-    if isinstance(value, np.random.Generator):
-        return [value]
-    if isinstance(value, (list, tuple)):
-        return [g for item in value for g in _generators(item)]
-    if isinstance(value, dict):
-        return [g for item in value.values() for g in _generators(item)]
-    return []
+    found: list[np.random.Generator] = []
+    _map_nested(value, lambda leaf: found.append(leaf) if isinstance(leaf, np.random.Generator) else None)
+    return found
 
 
 # -- the server's side --------------------------------------------------------------------------------
@@ -175,39 +184,33 @@ class _Hosted:
 
     def outgoing(self, value: Any) -> Any:
         """``value`` with every CoT's state replaced by a handle (the state kept here)."""
-        from vladrivebench.records import CoT
-
-        if isinstance(value, CoT) and value.state is not None and not isinstance(value.state, StateHandle):
-            self.next_number += 1
-            self.states[self.next_number] = value.state
-            while len(self.states) > HELD_STATES:
-                self.states.popitem(last=False)
-            return dataclasses.replace(value, state=StateHandle(self.next_number))
-        if isinstance(value, list):
-            return [self.outgoing(item) for item in value]
-        if isinstance(value, tuple):
-            return tuple(self.outgoing(item) for item in value)
-        if isinstance(value, dict):
-            return {key: self.outgoing(item) for key, item in value.items()}
-        return value
+        return _map_nested(value, self._handle)
 
     def incoming(self, value: Any) -> Any:
         """``value`` with every CoT's handle replaced by the state it stands for."""
+        return _map_nested(value, self._resolve)
+
+    def _handle(self, value: Any) -> Any:
         from vladrivebench.records import CoT
 
-        if isinstance(value, CoT) and isinstance(value.state, StateHandle):
-            state = self.states.get(value.state.number)
-            if state is None:
-                raise RemoteCallError(f"the model server no longer holds this CoT's state (it keeps the "
-                                      f"last {HELD_STATES} CoTs of each model)")
-            return dataclasses.replace(value, state=state)
-        if isinstance(value, list):
-            return [self.incoming(item) for item in value]
-        if isinstance(value, tuple):
-            return tuple(self.incoming(item) for item in value)
-        if isinstance(value, dict):
-            return {key: self.incoming(item) for key, item in value.items()}
-        return value
+        if not isinstance(value, CoT) or value.state is None or isinstance(value.state, StateHandle):
+            return value
+        self.next_number += 1
+        self.states[self.next_number] = value.state
+        while len(self.states) > HELD_STATES:
+            self.states.popitem(last=False)
+        return dataclasses.replace(value, state=StateHandle(self.next_number))
+
+    def _resolve(self, value: Any) -> Any:
+        from vladrivebench.records import CoT
+
+        if not isinstance(value, CoT) or not isinstance(value.state, StateHandle):
+            return value
+        state = self.states.get(value.state.number)
+        if state is None:
+            raise RemoteCallError(f"the model server no longer holds this CoT's state (it keeps the last "
+                                  f"{HELD_STATES} CoTs of each model)")
+        return dataclasses.replace(value, state=state)
 
 
 def _serve(conns: list[Any]) -> None:
@@ -218,17 +221,15 @@ def _serve(conns: list[Any]) -> None:
 
     _die_with_parent()
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    hosted: dict[int, _Hosted] = {}
-    stats = {"model_seconds": 0.0, "handling_seconds": 0.0, "first_call": 0.0, "last_call": 0.0}
+    hosted: dict[int, _Hosted] = {}  # instance number (never reused) → its model
+    stats = {"model_seconds": 0.0, "first_call": 0.0, "last_call": 0.0}
     open_conns = list(conns)
     while open_conns:
         for conn in wait(open_conns):
             try:
-                data = conn.recv_bytes()
+                message = pickle.loads(conn.recv_bytes())
             except (EOFError, OSError):
-                data = None
-            received = time.perf_counter()
-            message = pickle.loads(data) if data is not None else None
+                message = None
             if message is None:
                 open_conns.remove(conn)
                 continue
@@ -238,7 +239,6 @@ def _serve(conns: list[Any]) -> None:
             except Exception as exc:  # an unpicklable result: the caller gets the reason instead
                 data = pickle.dumps(_error(exc), protocol=pickle.HIGHEST_PROTOCOL)
             conn.send_bytes(data)
-            stats["handling_seconds"] += time.perf_counter() - received
 
 
 def _answer(message: tuple, hosted: dict[int, _Hosted], stats: dict[str, float]) -> tuple[str, Any]:
@@ -273,7 +273,7 @@ def _build(registry_spec: Any, component_spec: Any, hosted: dict[int, _Hosted]) 
     from vladrivebench._engine.sweep import _registry_for
 
     model = _registry_for(registry_spec).create(component_spec.kind, component_spec.name, component_spec.options)
-    instance = max(hosted, default=0) + 1
+    instance = next(_INSTANCE_NUMBERS)
     hosted[instance] = _Hosted(model)
     methods = [name for name in dir(type(model)) if not name.startswith("_") and callable(getattr(model, name))]
     return {"instance": instance, "methods": methods, "attributes": _attributes(model),

@@ -242,11 +242,13 @@ def create_component(registry: Registry, spec: Any) -> Any:
     return registry.create(spec.kind, spec.name, spec.options)
 
 
-def pipeline_turns() -> dict[str, Any]:
+def pipeline_turns(*, one_request: bool = False) -> dict[str, Any]:
     """``run_lockstep``'s ``harness_turn`` and ``model_turn`` for this thread: the model server's locks
-    under the ``pipelined`` executor, none otherwise."""
+    under the ``pipelined`` executor, none otherwise. A step that is ``one_request`` to the server needs no
+    model turn: it queues at the server while another job's step computes, and cannot interleave with it."""
     server = _THREAD.model_server[0] if _THREAD.model_server else None
-    return {"harness_turn": server and server.harness_turn, "model_turn": server and server.model_turn}
+    return {"harness_turn": server and server.harness_turn,
+            "model_turn": None if one_request else server and server.model_turn}
 
 
 def _component(registry: Registry, spec: ComponentSpec) -> Any:
@@ -426,12 +428,9 @@ def run_batch_job(job: BatchJob) -> list[EpisodeOutcome]:
                 for ep in job.episodes]
     names = {"model": first.model.name, "simulator": first.simulator.name, "controller": first.controller.name}
     try:
-        served = batched and _THREAD.model_server is not None
-        turns = pipeline_turns()
-        if served:  # a step is one request: it may queue at the server while another job's step computes
-            turns["model_turn"] = None
+        served = batched and _THREAD.model_server is not None  # then a step is one request
         run_lockstep(episodes, job.batch, make_lane=make_lane, done=done, names=names,
-                     batch_policy=_served_own_cot_policy if served else None, **turns)
+                     batch_policy=_served_own_cot_policy if served else None, **pipeline_turns(one_request=served))
     except Exception as exc:  # a writer or the loop itself broke: the episodes not yet done fail
         error, details = _describe_exception(exc)
         for eid in sorted(job.todo - set(outcomes)):
