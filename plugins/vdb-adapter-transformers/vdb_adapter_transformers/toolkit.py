@@ -92,10 +92,11 @@ class DecoderState:
     def next_position_ids(self, count: int, batch: int = 1) -> torch.Tensor:
         """Position ids of the next ``count`` tokens: ``(batch, count)`` for plain positions, ``(3, batch,
         count)`` for multimodal RoPE (cache position + rope delta on the temporal, height and width axes)."""
-        positions = torch.arange(self.length, self.length + count, dtype=torch.long).view(1, count)
+        positions = torch.arange(self.length, self.length + count, dtype=torch.long,
+                                 device=self.last_hidden.device).view(1, count)
         if self.rope_deltas is None:
             return positions.expand(batch, count)
-        shifted = positions + self.rope_deltas.to(torch.long).view(-1, 1)
+        shifted = positions + self.rope_deltas.to(positions.device, torch.long).view(-1, 1)
         return shifted.expand(batch, count).unsqueeze(0).expand(3, batch, count)
 
 
@@ -129,7 +130,7 @@ def encode_prefix(lm: torch.nn.Module, embeds: torch.Tensor) -> DecoderState:
     if embeds.dim() != 3:
         raise ValueError(f"prefix embeddings must be (batch, positions, hidden), got {tuple(embeds.shape)}")
     _check_fits(lm, embeds.shape[1], what="prefix")
-    positions = torch.arange(embeds.shape[1], dtype=torch.long).view(1, -1).expand(embeds.shape[0], -1)
+    positions = torch.arange(embeds.shape[1], dtype=torch.long, device=embeds.device).view(1, -1).expand(embeds.shape[0], -1)
     out = _forward(lm, new_cache(lm), inputs_embeds=embeds, position_ids=positions)
     return _state_from(out, embeds.shape[1], (), None)
 
@@ -153,7 +154,7 @@ def prefix_positions(model: torch.nn.Module, inputs: Mapping[str, torch.Tensor]
     ids = inputs["input_ids"]
     rope_index = rope_index_function(model)
     if rope_index is None or not any(inputs.get(k) is not None for k in GRID_KEYS):
-        return torch.arange(ids.shape[1], dtype=torch.long).view(1, -1).expand(ids.shape[0], -1), None
+        return torch.arange(ids.shape[1], dtype=torch.long, device=ids.device).view(1, -1).expand(ids.shape[0], -1), None
     extra = {k: inputs[k] for k in (*GRID_KEYS, "second_per_grid_ts", "attention_mask") if inputs.get(k) is not None}
     positions, deltas = rope_index(ids, mm_token_type_ids(model, inputs), **extra)
     return positions, deltas.to(torch.long).view(-1, 1)
@@ -210,7 +211,7 @@ def feed_token(lm: torch.nn.Module, state: DecoderState, token_id: int) -> Decod
     """Append one token with one forward pass (the autoregressive step) at the state's next position; the
     cache grows in place (fork first to keep the old state)."""
     _check_fits(lm, state.length + 1, what="sequence")
-    ids = torch.tensor([[token_id]], dtype=torch.long)
+    ids = torch.tensor([[token_id]], dtype=torch.long, device=state.last_hidden.device)
     out = _forward(lm, state.cache, input_ids=ids, position_ids=state.next_position_ids(1))
     return _state_from(out, state.length + 1, state.tokens + (token_id,), state.rope_deltas)
 
@@ -228,7 +229,7 @@ def feed_tokens(lm: torch.nn.Module, state: DecoderState, token_ids: Sequence[in
             state = feed_token(lm, state, token_id)
         return state
     _check_fits(lm, state.length + len(token_ids), what="sequence")
-    ids = torch.tensor([token_ids], dtype=torch.long)
+    ids = torch.tensor([token_ids], dtype=torch.long, device=state.last_hidden.device)
     out = _forward(lm, state.cache, input_ids=ids, position_ids=state.next_position_ids(len(token_ids)))
     return _state_from(out, state.length + len(token_ids), state.tokens + tuple(token_ids), state.rope_deltas)
 
@@ -292,53 +293,61 @@ def splice_tokens(lm: torch.nn.Module, state: DecoderState, token_ids: Sequence[
     cache. ``prefill`` feeds them in one pass (fast; equal only to floating-point rounding).
     Raises :class:`SpliceTooLongError` naming the limit when the text does not fit.
     """
-    needed = state.length + len(token_ids) + 2
-    limit = context_limit(lm)
-    if needed > limit:
-        raise SpliceTooLongError(
-            f"{what} is {len(token_ids)} tokens, too long for the model's context: prefix {state.length} + "
-            f"markers 2 + text must be at most {limit} positions (the text may have at most "
-            f"{limit - state.length - 2} tokens)"
-        )
+    check_splice_fits(lm, state.length, len(token_ids), what)
     return feed_tokens(lm, state, [start_id, *token_ids, end_id], mode)
+
+
+def check_splice_fits(lm: torch.nn.Module, prefix_length: int, count: int, what: str = "splice text") -> None:
+    """Raise :class:`SpliceTooLongError` naming the limit when ``count`` tokens between two markers do not
+    fit after a prefix of ``prefix_length`` positions."""
+    limit = context_limit(lm)
+    if prefix_length + count + 2 > limit:
+        raise SpliceTooLongError(
+            f"{what} is {count} tokens, too long for the model's context: prefix {prefix_length} + "
+            f"markers 2 + text must be at most {limit} positions (the text may have at most "
+            f"{limit - prefix_length - 2} tokens)"
+        )
 
 
 @torch.no_grad()
 def splice_batch(lm: torch.nn.Module, prefix: DecoderState, texts: Sequence[Sequence[int]], start_id: int,
-                 end_id: int, pad_id: int, mode: str = "prefill") -> DecoderState:
+                 end_id: int, pad_id: int, mode: str = "prefill", after: Sequence[int] = ()) -> DecoderState:
     """Splice K texts at once over one shared prefix cache; returns a batched state (batch K).
 
     The prefix cache is shared (copied K times along the batch, never recomputed); the texts are wrapped
     in markers and right-padded with ``pad_id``. Because attention is causal and the padding comes last,
     no real position ever attends to padding; ``key_mask`` marks real positions for the action head and
     ``last_hidden``/``last_logits`` are taken at each row's end marker. ``prefill`` runs one pass for all;
-    ``sequential`` one pass per position over the whole batch. Values equal the one-by-one splices up to
-    floating-point rounding.
+    ``sequential`` one pass per position over the whole batch. ``after`` are tokens every row gets right
+    after its end marker (e.g. the marker an action head starts from). Values equal the one-by-one splices
+    up to floating-point rounding.
     """
     _check_mode(mode)
-    rows = [[start_id, *map(int, t), end_id] for t in texts]
+    rows = [[start_id, *map(int, t), end_id, *map(int, after)] for t in texts]
     if not rows:
         raise ValueError("splice_batch needs at least one text")
     width = max(len(r) for r in rows)
     limit = context_limit(lm)
     if prefix.length + width > limit:
         raise SpliceTooLongError(
-            f"the longest splice text is {width - 2} tokens, too long for the model's context: prefix "
-            f"{prefix.length} + markers 2 + text must be at most {limit} positions"
+            f"the longest splice text is {width - 2 - len(after)} tokens, too long for the model's context: "
+            f"prefix {prefix.length} + markers {2 + len(after)} + text must be at most {limit} positions"
         )
     k = len(rows)
     cache = copy.deepcopy(prefix.cache)
     cache.batch_repeat_interleave(k)
+    device = prefix.last_hidden.device
     ids = torch.full((k, width), pad_id, dtype=torch.long)
     real = torch.zeros((k, width), dtype=torch.bool)
     for i, row in enumerate(rows):
         ids[i, : len(row)] = torch.tensor(row)
         real[i, : len(row)] = True
-    key_mask = torch.cat([torch.ones((k, prefix.length), dtype=torch.bool), real], dim=1)
+    ids, real = ids.to(device), real.to(device)
+    key_mask = torch.cat([torch.ones((k, prefix.length), dtype=torch.bool, device=device), real], dim=1)
     positions = prefix.next_position_ids(width, batch=k)
     hidden, logits = _run_batch(lm, cache, ids, key_mask, positions, prefix.length, mode)
-    last = torch.tensor([len(r) - 1 for r in rows])
-    rows_idx = torch.arange(k)
+    last = torch.tensor([len(r) - 1 for r in rows], device=device)
+    rows_idx = torch.arange(k, device=device)
     deltas = None if prefix.rope_deltas is None else prefix.rope_deltas.expand(k, 1).clone()
     return DecoderState(cache, hidden[rows_idx, last], logits[rows_idx, last], prefix.length + width,
                         tuple(rows[0]), key_mask, deltas)
@@ -386,7 +395,7 @@ def cache_difference(a: DecoderState, b: DecoderState) -> float:
 def _append_ids(inputs: Mapping[str, torch.Tensor], token_ids: Sequence[int]) -> dict[str, torch.Tensor]:
     """``inputs`` (processor outputs of a prefix) with ``token_ids`` appended as text."""
     out = dict(inputs)
-    extra = torch.tensor([[int(t) for t in token_ids]], dtype=torch.long)
+    extra = torch.tensor([[int(t) for t in token_ids]], dtype=torch.long, device=inputs["input_ids"].device)
     out["input_ids"] = torch.cat([inputs["input_ids"], extra], dim=1)
     if inputs.get("attention_mask") is not None:
         out["attention_mask"] = torch.cat([inputs["attention_mask"], torch.ones_like(extra)], dim=1)
@@ -410,7 +419,7 @@ def native_state(model: torch.nn.Module, inputs: Mapping[str, torch.Tensor], tok
     """
     if embeds is not None:
         table = model.get_input_embeddings()
-        extra = table(torch.tensor([[int(t) for t in token_ids]], dtype=torch.long)).to(embeds.dtype)
+        extra = table(torch.tensor([[int(t) for t in token_ids]], dtype=torch.long, device=embeds.device)).to(embeds.dtype)
         full = torch.cat([embeds, extra], dim=1)
         out = model(inputs_embeds=full, cache=new_cache(model), use_cache=True, output_hidden_states=True)
         return _state_from(out, full.shape[1], tuple(int(t) for t in token_ids), None)

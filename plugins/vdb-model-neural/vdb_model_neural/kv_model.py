@@ -243,8 +243,8 @@ class KVModel(BundledModel):
     def _lockstep_prefix(self, observations: list[Observation]) -> batching.LockstepDecoder:
         images = image_batch([o.image for o in observations]).to(self.device)
         ego = ego_features([o.ego.speed for o in observations], [o.command for o in observations]).to(self.device)
-        return batching.LockstepDecoder(self.network.lm, self.network.prefix_embeddings(images, ego),
-                                        self.codec.ids["<pad>"])
+        return batching.LockstepDecoder.from_embeddings(self.network.lm, self.network.prefix_embeddings(images, ego),
+                                                        self.codec.ids["<pad>"])
 
     def decode_action(self, obs: Observation, cot: CoT, rng: np.random.Generator) -> Trajectory:
         """Sample controls with noise from ``rng`` (pinned), roll them out into waypoints."""

@@ -260,7 +260,7 @@ class QAModel(BundledModel):
         images = image_batch([o.image for o in observations]).to(self.device)
         ego = ego_features([o.ego.speed for o in observations], [o.command for o in observations]).to(self.device)
         embeds = self.network.prefix_embeddings(images, ego)
-        return batching.LockstepDecoder(self.network.lm, embeds, self.codec.ids["<pad>"]), embeds
+        return batching.LockstepDecoder.from_embeddings(self.network.lm, embeds, self.codec.ids["<pad>"]), embeds
 
     def state_digest(self, cot: CoT) -> str:
         """SHA-256 of the cache and of the planner's inputs (planning token's hidden state, vision tokens)."""
