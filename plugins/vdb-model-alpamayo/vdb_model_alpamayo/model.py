@@ -19,7 +19,8 @@ from typing import Any
 
 import numpy as np
 import torch
-from vdb_adapter_transformers import toolkit
+from transformers import DynamicCache
+from vdb_adapter_transformers import lockstep, toolkit
 from vladrivebench import ConfigError, CoT, CoTFormat, Observation, Trajectory, TrajectorySpec
 
 from .backbone import (
@@ -44,6 +45,7 @@ CAMERA_ALIASES = {"front_wide": CAMERAS[0], "front_tele": CAMERAS[1], "cross_lef
 SYSTEM = "You are a driving assistant that generates safe and accurate actions."
 INSTRUCTION = "output the chain-of-thought reasoning of the driving process, then output the future trajectory."
 RATE_HZ, FLOW_STEPS = 10.0, 10
+SPLICE_WHAT = "model 'alpamayo' splice text"
 ACCEL_LIMITS, CURVATURE_LIMIT = (-8.0, 4.0), 0.25
 
 
@@ -85,7 +87,8 @@ class AlpamayoState:
 
 
 class AlpamayoModel:
-    """The Alpamayo 1 / 1.5 architecture as a VLADriveBench model (VLAModel, TokenCounter, FidelityCheck)."""
+    """The Alpamayo 1 / 1.5 architecture as a VLADriveBench model (VLAModel, BatchedModel, ConditionBatch,
+    TokenCounter, FidelityCheck)."""
 
     def __init__(self, backbone: Backbone, cameras: Sequence[str], frames: int, resolution: tuple[int, int],
                  max_cot_tokens: int, splice_mode: str, device: str = "cpu"):
@@ -105,9 +108,13 @@ class AlpamayoModel:
         self.trajectory_spec = TrajectorySpec(ACTION_TOKENS / RATE_HZ, RATE_HZ)
         self._prefix_key: tuple | None = None
         self._prefix: tuple[toolkit.DecoderState, dict] | None = None
+        self._batch_key: tuple | None = None
+        self._batch_rows: dict[tuple, tuple[toolkit.DecoderState, dict]] = {}
 
     # -- protocol ------------------------------------------------------------------------------------------
     def reset(self, seed: int) -> None:
+        """A new episode: forget the memo of the last observation's prompt cache (the batch memo of
+        :meth:`prefix_rows` depends on its call alone and may stay)."""
         self._prefix_key, self._prefix = None, None
 
     def generate_cot(self, obs: Observation, rng: np.random.Generator) -> CoT:
@@ -120,12 +127,9 @@ class AlpamayoModel:
 
     def splice_cot(self, obs: Observation, text: str | dict[str, str], rng: np.random.Generator) -> CoT:
         """The state the model would hold had it written ``text`` itself (an empty text is the empty splice)."""
-        if not isinstance(text, str):
-            raise ConfigError(f"model 'alpamayo' writes one sentence; a splice needs one text, got slots "
-                              f"{', '.join(text)}")
         prefix, inputs = self.prefix_state(obs)
-        state = toolkit.splice_tokens(self.backbone.vlm, prefix, self.encode(text), self.start_id, self.end_id,
-                                      mode=self.splice_mode, what="model 'alpamayo' splice text")
+        state = toolkit.splice_tokens(self.backbone.vlm, prefix, self.splice_ids(text), self.start_id, self.end_id,
+                                      mode=self.splice_mode, what=SPLICE_WHAT)
         state = toolkit.feed_token(self.backbone.vlm, state, self.future_id)
         return CoT(text=text, state=AlpamayoState(state, inputs), spliced=True)
 
@@ -134,6 +138,60 @@ class AlpamayoModel:
         state = self._state_of(obs, cot)
         controls = self.sample_controls(state.decoder, toolkit.torch_generator(rng))
         return controls_to_trajectory(controls, obs.ego.speed, 1.0 / RATE_HZ)
+
+    # -- lockstep batches (BatchedModel) and conditions over one prefix (ConditionBatch) ---------------------
+    def generate_cot_batch(self, observations: Sequence[Observation], rngs: Sequence[np.random.Generator]
+                           ) -> list[CoT]:
+        """Greedy CoTs for B observations in lockstep: the distinct observations' prompts, with all their
+        frames through the vision tower at once, in one prefill (:meth:`prefix_rows`), then one Qwen3-VL
+        pass per token for every row, each row at its own multimodal-RoPE positions."""
+        decoder, inputs = self._lockstep_prefix(observations)
+        texts = lockstep.generate_lockstep(decoder, self.start_id, self.end_id, self.max_cot_tokens,
+                                           banned=self.banned)
+        decoder.feed([self.future_id] * decoder.rows)
+        return [CoT(text=self.backbone.tokenizer.decode(t), state=self._row_state(decoder, i, t, inputs[i]))
+                for i, t in enumerate(texts)]
+
+    def splice_cot_batch(self, observations: Sequence[Observation], texts: Sequence[str],
+                         rngs: Sequence[np.random.Generator]) -> list[CoT]:
+        """``splice_cot`` for B observations, fed column by column exactly as :meth:`generate_cot_batch`
+        feeds its own tokens (whatever :attr:`splice_mode`): splicing a batch's own CoTs back gives
+        bit-identical caches."""
+        token_lists = [self.splice_ids(text) for text in texts]
+        decoder, inputs = self._lockstep_prefix(observations)
+        for length, tokens in zip(decoder.lengths.tolist(), token_lists, strict=True):
+            toolkit.check_splice_fits(self.backbone.vlm, int(length), len(tokens) + 1, SPLICE_WHAT)
+        lockstep.splice_lockstep(decoder, token_lists, self.start_id, self.end_id)
+        decoder.feed([self.future_id] * decoder.rows)
+        return [CoT(text=text, state=self._row_state(decoder, i, t, inputs[i]), spliced=True)
+                for i, (text, t) in enumerate(zip(texts, token_lists, strict=True))]
+
+    def decode_action_batch(self, observations: Sequence[Observation], cots: Sequence[CoT],
+                            rngs: Sequence[np.random.Generator]) -> list[Trajectory]:
+        """``decode_action`` for B (observation, CoT) pairs in one flow integration: the expert attends over
+        the rows' caches right-padded into one (padding masked), each row at its own positions, row i's
+        noise drawn from ``rngs[i]`` as alone."""
+        states = [self._state_of(obs, cot).decoder for obs, cot in zip(observations, cots, strict=True)]
+        layers, key_mask = lockstep.padded_cache(states)
+        positions = torch.cat([s.next_position_ids(ACTION_TOKENS) for s in states], dim=-2)
+        noise = torch.cat([self.noise(toolkit.torch_generator(rng)) for rng in rngs])
+        controls = self.integrate_flow(_cache_of(layers), key_mask, positions, noise)
+        return [controls_to_trajectory(c, obs.ego.speed, 1.0 / RATE_HZ)
+                for c, obs in zip(controls, observations, strict=True)]
+
+    def decode_batch(self, obs: Observation, texts: Sequence[str], rng: np.random.Generator) -> list[Trajectory]:
+        """One trajectory per spliced text over the observation's one shared prompt cache (its vision prefix
+        computed once): the texts spliced together (:func:`toolkit.splice_batch`), the expert run once
+        for all, every text with the same pinned noise. Equal to one-by-one splices up to rounding."""
+        prefix, _ = self.prefix_state(obs)
+        batch = toolkit.splice_batch(self.backbone.vlm, prefix, [self.splice_ids(t) for t in texts], self.start_id,
+                                     self.end_id, self.backbone.tokenizer.pad_token_id, mode=self.splice_mode,
+                                     after=[self.future_id])
+        lengths = batch.key_mask.sum(dim=1)
+        positions = (lengths + batch.rope_deltas.view(-1)).view(-1, 1) + torch.arange(ACTION_TOKENS, device=lengths.device)
+        noise = self.noise(toolkit.torch_generator(rng)).expand(len(texts), -1, -1)
+        controls = self.integrate_flow(batch.cache, batch.key_mask, positions.unsqueeze(0).expand(3, -1, -1), noise)
+        return [controls_to_trajectory(c, obs.ego.speed, 1.0 / RATE_HZ) for c in controls]
 
     def state_digest(self, cot: CoT) -> str:
         """SHA-256 of the VLM cache the expert reads (prefix, markers, CoT, ``<|traj_future_start|>``)."""
@@ -165,25 +223,50 @@ class AlpamayoModel:
     def encode(self, text: str) -> list[int]:
         return [int(t) for t in self.backbone.tokenizer(text, add_special_tokens=False)["input_ids"]]
 
+    def splice_ids(self, text: Any) -> list[int]:
+        """The token ids of a splice text (one sentence; slots are refused in one line)."""
+        if not isinstance(text, str):
+            raise ConfigError(f"model 'alpamayo' writes one sentence; a splice needs one text, got slots "
+                              f"{', '.join(text)}")
+        return self.encode(text)
+
+    def noise(self, generator: torch.Generator) -> torch.Tensor:
+        """The flow's starting noise ``(1, 64, 2)``, drawn from ``generator`` on the CPU (same on every device)."""
+        return torch.randn(1, ACTION_TOKENS, ACTION_DIMS, generator=generator)
+
     @torch.no_grad()
     def sample_controls(self, decoder: toolkit.DecoderState, generator: torch.Generator) -> np.ndarray:
         """(acceleration m/s², curvature 1/m) × 64: 10 Euler steps of the expert's velocity field from
         noise drawn from ``generator``, the expert attending to ``decoder``'s cache without a causal mask."""
+        positions = decoder.next_position_ids(ACTION_TOKENS)
+        return self.integrate_flow(decoder.cache, None, positions, self.noise(generator))[0]
+
+    @torch.no_grad()
+    def integrate_flow(self, cache: Any, key_mask: torch.Tensor | None, positions: torch.Tensor,
+                       noise: torch.Tensor) -> np.ndarray:
+        """Controls ``(B, 64, 2)`` from noise ``(B, 64, 2)``: the expert's 64 action tokens of each row at
+        ``positions`` (``(3, B, 64)``) attend, without a causal mask, to that row's cache positions where
+        ``key_mask`` ``(B, length)`` is true (all when it is ``None``) and to one another. The expert's
+        keys are cropped off the cache after every Euler step."""
         b = self.backbone
         dtype = _dtype(b)
-        x = torch.randn(1, ACTION_TOKENS, ACTION_DIMS, generator=generator).to(self.device, dtype)
-        positions = decoder.next_position_ids(ACTION_TOKENS).to(self.device)
-        mask = torch.zeros(1, 1, ACTION_TOKENS, decoder.length + ACTION_TOKENS, dtype=dtype, device=self.device)
+        x = noise.to(self.device, dtype)
+        rows, length = x.shape[0], cache.get_seq_length()
+        mask = torch.zeros(rows, 1, ACTION_TOKENS, length + ACTION_TOKENS, dtype=dtype, device=self.device)
+        if key_mask is not None:
+            hidden_keys = ~key_mask.to(self.device)[:, None, None, :]
+            mask[..., :length] = mask[..., :length].masked_fill(hidden_keys, torch.finfo(dtype).min)
+        positions = positions.to(self.device)
         for k in range(FLOW_STEPS):
-            t = torch.full((1,), k / FLOW_STEPS, dtype=dtype, device=self.device)
-            hidden = b.expert(inputs_embeds=b.action_in(x, t), position_ids=positions, cache=decoder.cache,
+            t = torch.full((rows,), k / FLOW_STEPS, dtype=dtype, device=self.device)
+            hidden = b.expert(inputs_embeds=b.action_in(x, t), position_ids=positions, cache=cache,
                               attention_mask=mask, use_cache=True).last_hidden_state
-            decoder.cache.crop(-ACTION_TOKENS)  # the expert's own keys never stay in the VLM's cache
+            cache.crop(-ACTION_TOKENS)  # the expert's own keys never stay in the VLM's cache
             x = x + b.action_out(hidden) / FLOW_STEPS
-        actions = x[0].float().cpu().numpy().astype(np.float64)
-        accel = np.clip(actions[:, 0] * b.accel_scale, *ACCEL_LIMITS)
-        curvature = np.clip(actions[:, 1] * b.curvature_scale, -CURVATURE_LIMIT, CURVATURE_LIMIT)
-        return np.stack([accel, curvature], axis=1)
+        actions = x.float().cpu().numpy().astype(np.float64)
+        accel = np.clip(actions[..., 0] * b.accel_scale, *ACCEL_LIMITS)
+        curvature = np.clip(actions[..., 1] * b.curvature_scale, -CURVATURE_LIMIT, CURVATURE_LIMIT)
+        return np.stack([accel, curvature], axis=-1)
 
     @torch.no_grad()
     def prefix_state(self, obs: Observation) -> tuple[toolkit.DecoderState, dict]:
@@ -196,6 +279,26 @@ class AlpamayoModel:
             self._prefix_key = key
         state, inputs = self._prefix
         return toolkit.fork(state), inputs
+
+    def prefix_rows(self, observations: Sequence[Observation]) -> list[tuple[toolkit.DecoderState, dict]]:
+        """Each observation's prompt cache (batch 1, never to be fed) and processor inputs.
+
+        The distinct observations of the call, in order, go through Qwen3-VL in one batched prefill
+        (:func:`lockstep.encode_inputs_batch`: every frame of every row through the vision tower at once).
+        The result depends only on the call's list of observations — never on earlier calls — so the same
+        list always gets the same bits: the memo keeps only the last list's rows (a step's generation, its
+        selfsplice and its conditions share them; a model state as large as a batch's prompts is kept once).
+        """
+        framesets = [self.camera_frames(obs) for obs in observations]
+        keys = [_observation_key(obs, frames) for obs, frames in zip(observations, framesets, strict=True)]
+        if tuple(keys) != self._batch_key:
+            self._batch_key, self._batch_rows = None, {}  # free the old rows before the new prefill
+            first = {key: i for i, key in reversed(list(enumerate(keys)))}
+            distinct = list(dict.fromkeys(keys))
+            inputs = [self.prompt_inputs(observations[first[k]], framesets[first[k]]) for k in distinct]
+            states = lockstep.encode_inputs_batch(self.backbone.vlm, inputs)
+            self._batch_key, self._batch_rows = tuple(keys), dict(zip(distinct, zip(states, inputs, strict=True), strict=True))
+        return [self._batch_rows[key] for key in keys]
 
     def camera_frames(self, obs: Observation) -> dict[str, list[np.ndarray]]:
         """``frames`` images per camera, oldest first, resized to the model's resolution.
@@ -252,6 +355,18 @@ class AlpamayoModel:
         keep = {self.end_id} | {i for ch in map(chr, range(0x20, 0x7F)) if ch != "|" for i in self.encode(ch)}
         return sorted(set(special) | (set(range(len(b.tokenizer))) - keep))
 
+    def _lockstep_prefix(self, observations: Sequence[Observation]) -> tuple[lockstep.LockstepDecoder, list[dict]]:
+        rows = self.prefix_rows(observations)
+        decoder = lockstep.LockstepDecoder.from_states(self.backbone.vlm, [state for state, _ in rows],
+                                                       self.backbone.tokenizer.pad_token_id)
+        return decoder, [inputs for _, inputs in rows]
+
+    def _row_state(self, decoder: lockstep.LockstepDecoder, row: int, text: Sequence[int], inputs: dict
+                   ) -> AlpamayoState:
+        """Row ``row`` of a lockstep batch after ``<|traj_future_start|>``, its fed tokens as alone."""
+        fed = (self.start_id, *text, self.end_id, self.future_id)
+        return AlpamayoState(decoder.row_state(row, fed), inputs)
+
     def _state_of(self, obs: Observation, cot: CoT) -> AlpamayoState:
         if isinstance(cot.state, AlpamayoState):
             return cot.state
@@ -292,6 +407,13 @@ def controls_to_trajectory(controls: np.ndarray, speed: float, dt: float) -> Tra
         v = v_next
         xy[k] = (x, y)
     return Trajectory(times=dt * np.arange(1, len(controls) + 1), xy=xy)
+
+
+def _cache_of(layers: Sequence[tuple[torch.Tensor, torch.Tensor]]) -> DynamicCache:
+    cache = DynamicCache()
+    for index, (keys, values) in enumerate(layers):
+        cache.update(keys, values, index)
+    return cache
 
 
 def _dtype(backbone: Backbone) -> torch.dtype:
