@@ -1,13 +1,17 @@
 """The tiny Alpamayo-architecture model's step on CPU, split into its parts, printed as ratios.
 
     python plugins/vdb-model-alpamayo/benchmarks/bench_alpamayo.py [--repeats 5] [--frames 1] [--cot 24]
+        [--batch-sizes 1,4,16]
 
 Parts of one step (medians of ``--repeats`` runs, one thread): the prompt prefix (Qwen3-VL's vision tower
 and one pass over the prompt), generating the CoT, splicing the same CoT sequentially (one pass per token,
 bit-identical) and in prefill (one pass), the action expert (10 Euler steps of flow matching over 64 action
 tokens), and the fidelity check (Qwen3-VL's own forward pass over prefix + CoT and a second expert run),
 which the intervention gate runs at every gated step. A *step* is what a plain episode pays: prefix +
-generate + expert. The machine may be shared: read the ratios, not the absolute times.
+generate + expert. Then lockstep batches: a step of B episodes (``generate_cot_batch`` +
+``decode_action_batch`` on B different observations) against B unbatched steps, per episode-step, with the
+selfsplice of the batch's own CoTs checked bit for bit. The machine may be shared: read the ratios, not the
+absolute times.
 """
 
 from __future__ import annotations
@@ -35,6 +39,7 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--frames", type=int, default=1)
     parser.add_argument("--cot", type=int, default=24, help="CoT tokens to generate and splice")
+    parser.add_argument("--batch-sizes", default="1,4,16", help="lockstep batch sizes to time")
     args = parser.parse_args()
 
     from vdb_model_alpamayo.plugin import make_alpamayo
@@ -70,6 +75,37 @@ def main() -> None:
     print(f"step = prefix + generate + expert: {1000 * step:.1f} ms")
     print(f"sequential / prefill splice: {times['splice, sequential'] / times['splice, prefill']:.2f}x")
     print(f"fidelity check / step: {times['fidelity check'] / step:.2f} (it runs at every gated step)")
+    batches(model, [int(b) for b in args.batch_sizes.split(",")], args.repeats)
+
+
+def batches(model, sizes: list[int], repeats: int) -> None:
+    """Model time per episode-step of a lockstep step of B episodes, against B unbatched steps."""
+    print(f"{'B':>4s} {'unbatched ms/ep':>16s} {'batched ms/ep':>14s} {'speed-up':>9s} {'selfsplice':>11s}")
+    for size in sizes:
+        alone, together, exact = time_batch(model, size, repeats)
+        print(f"{size:4d} {1000 * alone / size:16.1f} {1000 * together / size:14.1f} {alone / together:8.2f}x "
+              f"{'bit-exact' if exact else 'DIFFERS':>11s}")
+
+
+def time_batch(model, size: int, repeats: int) -> tuple[float, float, bool]:
+    """(B unbatched steps s, one batched step s, selfsplice of the batch's own CoTs bit-exact)."""
+    observations = [synthetic_observation(height=80, width=160, seed=i) for i in range(size)]
+    rngs = [np.random.default_rng(i) for i in range(size)]
+
+    def unbatched():
+        for obs, rng in zip(observations, rngs, strict=True):
+            model.reset(0)
+            model.decode_action(obs, model.generate_cot(obs, rng), rng)
+
+    def batched():
+        model._batch_key = None  # time the prefill, not the memo
+        model.decode_action_batch(observations, model.generate_cot_batch(observations, rngs), rngs)
+
+    alone, together = median_time(unbatched, repeats), median_time(batched, repeats)
+    own = model.generate_cot_batch(observations, rngs)
+    spliced = model.splice_cot_batch(observations, [c.text for c in own], rngs)
+    exact = all(model.state_digest(a) == model.state_digest(b) for a, b in zip(own, spliced, strict=True))
+    return alone, together, exact
 
 
 if __name__ == "__main__":
