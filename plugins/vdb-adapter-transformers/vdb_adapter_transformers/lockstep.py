@@ -69,9 +69,7 @@ class LockstepDecoder:
         if len({s.rope_deltas is None for s in states}) != 1:
             raise ValueError("a lockstep batch cannot mix plain positions and multimodal rope deltas")
         layers, mask = padded_cache(states)
-        cache = DynamicCache()
-        for index, (keys, values) in enumerate(layers):
-            cache.update(keys, values, index)
+        cache = cache_of(layers)
         hidden = torch.cat([s.last_hidden for s in states])
         logits = torch.cat([s.last_logits for s in states])
         deltas = None if states[0].rope_deltas is None else torch.cat([s.rope_deltas for s in states]).to(mask.device)
@@ -249,6 +247,14 @@ def padded_cache(states: Sequence[toolkit.DecoderState]) -> tuple[list[tuple[tor
         values = torch.cat([_pad(v, width) for _, v in per_state])
         layers.append((keys, values))
     return layers, mask
+
+
+def cache_of(layers: Sequence[tuple[torch.Tensor, torch.Tensor]]) -> DynamicCache:
+    """A cache holding per layer ``(keys, values)`` (e.g. those of :func:`padded_cache`)."""
+    cache = DynamicCache()
+    for index, (keys, values) in enumerate(layers):
+        cache.update(keys, values, index)
+    return cache
 
 
 def _pad(tensor: torch.Tensor, width: int) -> torch.Tensor:

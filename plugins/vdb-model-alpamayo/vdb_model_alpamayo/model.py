@@ -19,7 +19,6 @@ from typing import Any
 
 import numpy as np
 import torch
-from transformers import DynamicCache
 from vdb_adapter_transformers import lockstep, toolkit
 from vladrivebench import ConfigError, CoT, CoTFormat, Observation, Trajectory, TrajectorySpec
 
@@ -175,7 +174,7 @@ class AlpamayoModel:
         layers, key_mask = lockstep.padded_cache(states)
         positions = torch.cat([s.next_position_ids(ACTION_TOKENS) for s in states], dim=-2)
         noise = torch.cat([self.noise(toolkit.torch_generator(rng)) for rng in rngs])
-        controls = self.integrate_flow(_cache_of(layers), key_mask, positions, noise)
+        controls = self.integrate_flow(lockstep.cache_of(layers), key_mask, positions, noise)
         return [controls_to_trajectory(c, obs.ego.speed, 1.0 / RATE_HZ)
                 for c, obs in zip(controls, observations, strict=True)]
 
@@ -407,13 +406,6 @@ def controls_to_trajectory(controls: np.ndarray, speed: float, dt: float) -> Tra
         v = v_next
         xy[k] = (x, y)
     return Trajectory(times=dt * np.arange(1, len(controls) + 1), xy=xy)
-
-
-def _cache_of(layers: Sequence[tuple[torch.Tensor, torch.Tensor]]) -> DynamicCache:
-    cache = DynamicCache()
-    for index, (keys, values) in enumerate(layers):
-        cache.update(keys, values, index)
-    return cache
 
 
 def _dtype(backbone: Backbone) -> torch.dtype:
