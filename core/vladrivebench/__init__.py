@@ -59,6 +59,7 @@ _LAZY = {
     'BatchedModel': 'vladrivebench.protocols',
     'BatchedParadigm': 'vladrivebench.protocols',
     'CoTExtras': 'vladrivebench.protocols',
+    'EpisodeMemory': 'vladrivebench.protocols',
     'FidelityCheck': 'vladrivebench.protocols',
     'Condition': 'vladrivebench.protocols',
     'ConditionBatch': 'vladrivebench.protocols',
@@ -99,7 +100,7 @@ __all__ = [
     "API_VERSION", "PROJECT_NAME", "PUBLIC_SUBPACKAGES", "__version__", "hookimpl",
     # protocols and optional model capabilities
     "Simulator", "VLAModel", "Controller", "Labeler", "Metric", "Executor", "Condition", "ConditionContext",
-    "Injection", "Paradigm", "BatchedParadigm", "BatchedModel", "TokenCounter", "CoTExtras", "ConditionBatch", "FidelityCheck",
+    "Injection", "Paradigm", "BatchedParadigm", "BatchedModel", "EpisodeMemory", "TokenCounter", "CoTExtras", "ConditionBatch", "FidelityCheck",
     # records
     "ACTOR_KINDS", "LIGHT_COLOURS", "NAV_COMMANDS", "STATED_ACTIONS", "Actor", "Control", "CoT", "CoTFormat",
     "EgoState", "GroundTruth", "LabelInput", "Labels", "Observation", "Trajectory", "TrajectorySpec",

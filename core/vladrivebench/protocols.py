@@ -79,7 +79,8 @@ class VLAModel(Protocol):
     trajectory_spec: TrajectorySpec
 
     def reset(self, seed: int) -> None:
-        """Forget any per-episode memory (history, caches)."""
+        """Forget any per-episode memory (history, caches). (Not called for an :class:`EpisodeMemory`
+        model, whose ``start_episode`` replaces it.)"""
         ...
 
     def generate_cot(self, obs: Observation, rng: np.random.Generator) -> CoT:
@@ -194,10 +195,11 @@ class BatchedModel(Protocol):
     call (``step_rng(seed_i, step, purpose, scenario_i)``), so a batched call must give every episode the
     draws it would have had alone. Results may differ from the unbatched methods in floating point only.
 
-    One instance serves every episode of a batch, so a batched model keeps no per-episode memory outside
-    the CoTs it returns; ``reset(seed)`` is still called whenever an episode joins the batch. A model that
-    needs per-episode memory should not declare this capability: without it, ``--batch`` gives each lane
-    its own instance and calls the per-episode methods. A batched model may also offer
+    One instance serves every episode of a batch, so ``reset(seed)``, called whenever an episode joins
+    the batch, must not forget what the other episodes still need. A batched model keeps no per-episode
+    memory outside the CoTs it returns, unless it also declares :class:`EpisodeMemory` and keys that memory
+    by ``obs.episode``. (A model that declares neither runs under ``--batch`` with one instance per lane,
+    through its per-episode methods.) A batched model may also offer
     ``splice_cot_batch(observations, texts, rngs)``, feeding the texts exactly as ``generate_cot_batch``
     feeds its own, so that a selfsplice within a batch is bit-identical (the reference models do).
     """
@@ -210,6 +212,30 @@ class BatchedModel(Protocol):
     def decode_action_batch(self, observations: Sequence[Observation], cots: Sequence[CoT],
                             rngs: Sequence[np.random.Generator]) -> list[Trajectory]:
         """``decode_action`` for each (observation, CoT) pair."""
+        ...
+
+
+@runtime_checkable
+class EpisodeMemory(Protocol):
+    """A model that keeps memory per episode (stop signs already obeyed, past frames, a recurrent state)
+    while one instance serves several episodes at once, as a :class:`BatchedModel` does under ``--batch``.
+
+    The runner names every episode and stamps the name on each of its observations (``obs.episode``):
+    the same at every step, different for every episode that runs beside it. For a model with this
+    capability the runner calls ``start_episode(episode, seed)`` when an episode starts, *instead of*
+    ``reset(seed)`` (which would wipe the batch-mates' memory), and ``end_episode(episode)`` when it ends
+    or fails. The model reads and updates the memory of ``obs.episode`` in every call, batched or not, so
+    a row of a batched call sees exactly the memory it would see alone. As for any model, memory is
+    updated from observations only, and seeing an observation again changes nothing (interventions splice
+    and decode several times per step, in any order).
+    """
+
+    def start_episode(self, episode: str, seed: int) -> None:
+        """Episode ``episode`` (seeded ``seed``) starts: its memory is empty, whatever it held before."""
+        ...
+
+    def end_episode(self, episode: str) -> None:
+        """Episode ``episode`` has ended: its memory may be dropped. Unknown names are ignored."""
         ...
 
 

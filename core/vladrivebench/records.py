@@ -223,6 +223,12 @@ class Observation:
     states and ``route_text`` a navigation instruction in words (``""`` if none). ``ground_truth`` is
     privileged information: the scripted reference model reads it as its "perception"; a real VLA
     adapter must not. Images never take part in comparisons or the repr.
+
+    ``episode`` names the episode the observation belongs to. The runner sets it (a simulator leaves it
+    ``""``): it is the same at every step of an episode and differs between the episodes one model
+    instance serves at once, so a model that keeps memory while serving a lockstep batch keys that
+    memory by it (:class:`~vladrivebench.EpisodeMemory`). It is never logged and takes no part in
+    comparisons.
     """
 
     step: int
@@ -235,6 +241,7 @@ class Observation:
     cameras: Mapping[str, CameraView] = field(default_factory=dict, repr=False, compare=False)
     pose_history: PoseHistory = field(default_factory=PoseHistory, repr=False)
     route_text: str = ""
+    episode: str = field(default="", compare=False, repr=False)
 
     def camera_views(self) -> Mapping[str, CameraView]:
         """``cameras``, or, when it is empty, one view ``"front"`` holding ``image`` (90° field of view)."""

@@ -24,7 +24,7 @@ import numpy as np
 
 from vladrivebench._engine.rng import step_rng
 from vladrivebench.errors import ModelOutputError, VdbError
-from vladrivebench.protocols import Controller, CoTExtras, Simulator, VLAModel
+from vladrivebench.protocols import Controller, CoTExtras, EpisodeMemory, Simulator, VLAModel
 from vladrivebench.records import Control, CoT, GroundTruth, Observation, Trajectory
 
 StepOutput = tuple[CoT, Trajectory, dict]
@@ -130,6 +130,7 @@ def run_episode(
     controller_name: str = "controller",
     max_steps: int | None = None,
     on_step: Callable[[Observation, CoT, Trajectory, Control, dict], None] | None = None,
+    episode: str | None = None,
 ) -> EpisodeResult:
     """Drive one episode closed-loop and return its result.
 
@@ -138,7 +139,9 @@ def run_episode(
     unless the observation is terminal, the simulator advances. The terminal observation is logged too,
     with the model's output for it, so the step that ended the episode (a collision) is in the log.
     ``max_steps`` (default: the scenario's ``max_steps`` + 1) is a safety net against a simulator that
-    never ends an episode; reaching it ends the episode with terminal ``"step_limit"``.
+    never ends an episode; reaching it ends the episode with terminal ``"step_limit"``. Every observation
+    carries ``episode`` (default :func:`episode_name`) as ``obs.episode``; an
+    :class:`~vladrivebench.EpisodeMemory` model is told when the episode starts and ends.
 
     Any exception of a component becomes an :class:`EpisodeFailure` naming the component, the call and
     the step; a malformed model output becomes one too (its cause a :class:`ModelOutputError`).
@@ -148,32 +151,77 @@ def run_episode(
     names = {"model": model_name, "simulator": simulator_name, "controller": controller_name}
     scenario_id = getattr(scenario, "id", str(scenario))
     where = f"{scenario_id} seed {seed}"
+    name = episode or episode_name(scenario, seed)
     with _blame(names, "simulator", "reset", where, None):
-        obs = simulator.reset(scenario, seed)
+        obs = with_episode(simulator.reset(scenario, seed), name)
     with _blame(names, "model", "reset", where, None):
-        model.reset(seed)
+        start_model_episode(model, name, seed)
     with _blame(names, "controller", "reset", where, None):
         controller.reset()
     tally = _Tally()
-    while True:
-        step = obs.step
-        with _blame(names, "model", "step policy", where, step):
-            cot, trajectory, extras = policy(model, obs, seed)
-            check_model_output(cot, trajectory, model_name=model_name, step=step, where=where)
-        with _blame(names, "controller", "control", where, step):
-            control = controller.control(trajectory, obs.ego, simulator.dt)
-            _check_control(control)
-        if writer is not None:
-            writer.write_step(obs, cot, trajectory, control, extras)
-        if on_step is not None:
-            on_step(obs, cot, trajectory, control, extras)
-        tally.add(obs)
-        if obs.ground_truth.terminal:
-            return tally.result(obs.ground_truth.terminal)
-        if tally.steps >= limit:
-            return tally.result("step_limit")
-        with _blame(names, "simulator", "step", where, step):
-            obs = simulator.step(control)
+    try:
+        while True:
+            step = obs.step
+            with _blame(names, "model", "step policy", where, step):
+                cot, trajectory, extras = policy(model, obs, seed)
+                check_model_output(cot, trajectory, model_name=model_name, step=step, where=where)
+            with _blame(names, "controller", "control", where, step):
+                control = controller.control(trajectory, obs.ego, simulator.dt)
+                _check_control(control)
+            if writer is not None:
+                writer.write_step(obs, cot, trajectory, control, extras)
+            if on_step is not None:
+                on_step(obs, cot, trajectory, control, extras)
+            tally.add(obs)
+            if obs.ground_truth.terminal:
+                result = tally.result(obs.ground_truth.terminal)
+                break
+            if tally.steps >= limit:
+                result = tally.result("step_limit")
+                break
+            with _blame(names, "simulator", "step", where, step):
+                obs = with_episode(simulator.step(control), name)
+    except BaseException:
+        _end_after_failure(model, name)
+        raise
+    with _blame(names, "model", "end_episode", where, None):
+        end_model_episode(model, name)
+    return result
+
+
+def episode_name(scenario: Any, seed: int) -> str:
+    """The runner's default name of an episode (``obs.episode``): ``"<scenario id> seed <seed>"``."""
+    return f"{getattr(scenario, 'id', scenario)} seed {seed}"
+
+
+def with_episode(obs: Observation, episode: str) -> Observation:
+    """``obs`` stamped with the name of the episode it belongs to (a simulator leaves ``obs.episode`` empty)."""
+    if not isinstance(obs, Observation) or obs.episode == episode:
+        return obs
+    return dataclasses.replace(obs, episode=episode)
+
+
+def start_model_episode(model: Any, episode: str, seed: int) -> None:
+    """Tell ``model`` that ``episode`` starts: ``start_episode(episode, seed)`` for an
+    :class:`~vladrivebench.EpisodeMemory` model (which may be serving other episodes), else ``reset(seed)``."""
+    if isinstance(model, EpisodeMemory):
+        model.start_episode(episode, seed)
+    else:
+        model.reset(seed)
+
+
+def end_model_episode(model: Any, episode: str) -> None:
+    """Tell an :class:`~vladrivebench.EpisodeMemory` model that ``episode`` has ended (others need nothing)."""
+    if isinstance(model, EpisodeMemory):
+        model.end_episode(episode)
+
+
+def _end_after_failure(model: Any, episode: str) -> None:
+    """:func:`end_model_episode` for an episode that already failed: its own failure is the one reported."""
+    try:
+        end_model_episode(model, episode)
+    except Exception:
+        pass
 
 
 def _default_step_limit(scenario: Any) -> int:
@@ -315,7 +363,8 @@ class LockstepEpisode:
     ``policy`` is the episode's own step policy, used when its lane is served one by one (default:
     :func:`own_cot_policy`); ``wrap_controller(controller)`` gives the controller the episode drives with,
     built around its lane's; episodes with the same non-``None`` ``group`` (consecutive in the list) join
-    the batch together, so they see the same batches at every step."""
+    the batch together, so they see the same batches at every step. ``name`` is stamped on the episode's
+    observations (``obs.episode``; default :func:`episode_name`, made unique among the lanes running)."""
 
     key: Any
     scenario: Any
@@ -324,11 +373,13 @@ class LockstepEpisode:
     policy: StepPolicy | None = None
     wrap_controller: Callable[[Any], Any] | None = None
     group: Any = None
+    name: str = ""
 
 
 @dataclass
 class _Lane:
     episode: LockstepEpisode
+    name: str
     obs: Observation
     writer: Any
     simulator: Any
@@ -395,6 +446,7 @@ def run_lockstep(
             for (i, lane), output in zip(active, outputs, strict=True):
                 finished = _advance_lane(lane, output, names)
                 if finished is not None:
+                    finished = _end_lane(lane, finished, names)
                     lanes[i] = None
                     if isinstance(finished, EpisodeFailure) and finished.component != "model":
                         components.pop(i, None)  # ask make_lane again for that lane before its next episode
@@ -453,23 +505,45 @@ def _join(i: int, episode: LockstepEpisode, lanes: list[_Lane | None], component
         writer = episode.open_writer() if episode.open_writer else None
         if episode.wrap_controller is not None:
             controller = episode.wrap_controller(controller)
-        lanes[i] = _start_lane(episode, writer, model, simulator, controller, names)
+        name = _unique_name(episode.name or episode_name(episode.scenario, episode.seed), i, lanes)
+        lanes[i] = _start_lane(episode, name, writer, model, simulator, controller, names)
     except EpisodeFailure as failure:
         components.pop(i, None)
         done(episode, failure, writer)
 
 
-def _start_lane(episode: LockstepEpisode, writer: Any, model: Any, simulator: Any, controller: Any,
+def _unique_name(name: str, lane: int, lanes: Sequence[_Lane | None]) -> str:
+    """``name``, or ``name`` with its lane when a running lane already has that name."""
+    taken = {other.name for other in lanes if other is not None}
+    return name if name not in taken else f"{name} (lane {lane})"
+
+
+def _start_lane(episode: LockstepEpisode, name: str, writer: Any, model: Any, simulator: Any, controller: Any,
                 names: Mapping[str, str]) -> _Lane:
     scenario_id = getattr(episode.scenario, "id", str(episode.scenario))
     where = f"{scenario_id} seed {episode.seed}"
     with _blame(names, "simulator", "reset", where, None):
-        obs = simulator.reset(episode.scenario, episode.seed)
+        obs = with_episode(simulator.reset(episode.scenario, episode.seed), name)
     with _blame(names, "model", "reset", where, None):
-        model.reset(episode.seed)
+        start_model_episode(model, name, episode.seed)
     with _blame(names, "controller", "reset", where, None):
         controller.reset()
-    return _Lane(episode, obs, writer, simulator, controller, model, limit=_default_step_limit(episode.scenario))
+    return _Lane(episode, name, obs, writer, simulator, controller, model,
+                 limit=_default_step_limit(episode.scenario))
+
+
+def _end_lane(lane: _Lane, finished: EpisodeResult | EpisodeFailure, names: Mapping[str, str]
+              ) -> EpisodeResult | EpisodeFailure:
+    """Tell the lane's model that its episode ended; a model that fails at that fails the episode."""
+    if isinstance(finished, EpisodeFailure):
+        _end_after_failure(lane.model, lane.name)
+        return finished
+    try:
+        with _blame(names, "model", "end_episode", _where(lane), None):
+            end_model_episode(lane.model, lane.name)
+    except EpisodeFailure as failure:
+        return failure
+    return finished
 
 
 def _lockstep_outputs(lanes: Sequence[_Lane], names: Mapping[str, str], batch_policy: BatchStepPolicy | None
@@ -523,7 +597,7 @@ def _advance_lane(lane: _Lane, output: StepOutput | EpisodeFailure, names: Mappi
         if lane.tally.steps >= lane.limit:
             return lane.tally.result("step_limit")
         with _blame(names, "simulator", "step", where, step):
-            lane.obs = lane.simulator.step(control)
+            lane.obs = with_episode(lane.simulator.step(control), lane.name)
     except EpisodeFailure as failure:
         return failure
     return None

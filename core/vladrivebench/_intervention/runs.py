@@ -351,6 +351,11 @@ class PlannedEpisode:
     def key(self) -> tuple[str, int, str]:
         return (self.route.id, self.seed, self.name)
 
+    @property
+    def episode(self) -> str:
+        """The runner's name of the episode (``obs.episode``): unique among a run's episodes."""
+        return f"{self.route.id} seed {self.seed} {self.name}"
+
 
 @runtime_checkable
 class WrapsController(Protocol):
@@ -726,11 +731,19 @@ class InterventionRun:
     def preflight(self, *, harvested: bool) -> None:
         """Resolve and splice every condition on the first step of each route before any episode runs,
         so a condition the model cannot take is a one-line error and nothing is written."""
+        from vladrivebench._engine.runner import (
+            end_model_episode,
+            episode_name,
+            start_model_episode,
+            with_episode,
+        )
+
         sim, model = self.component("simulator"), self.component("model")
         seed = self.config.seeds[0]
         for route in self.config.routes:
-            obs = sim.reset(route, seed)
-            model.reset(seed)
+            episode = f"{episode_name(route, seed)} preflight"
+            obs = with_episode(sim.reset(route, seed), episode)
+            start_model_episode(model, episode, seed)
             own, _ = own_step(model, obs, seed)
             resolver = self.splicer.resolver(own)
             for name in self.config.tested:
@@ -738,6 +751,7 @@ class InterventionRun:
                 if needs_harvest != harvested:
                     continue
                 self.splicer.splice(obs, name, self.splicer.injection(resolver, name), seed)
+            end_model_episode(model, episode)
 
     def episode_path(self, episode: PlannedEpisode) -> Path:
         from vladrivebench._engine.sweep import EPISODES_DIR, episode_id
@@ -933,7 +947,8 @@ class InterventionRun:
                 opener = self._writer_opener(planned, writers)
             wrap = policy.wrap_controller if isinstance(policy, WrapsController) else None
             episodes.append(LockstepEpisode((planned, policy), planned.route, planned.seed, opener, policy=policy,
-                                            wrap_controller=wrap, group=self.paradigm.lockstep_group(planned)))
+                                            wrap_controller=wrap, group=self.paradigm.lockstep_group(planned),
+                                            name=planned.episode))
 
         def done(episode: LockstepEpisode, finished: Any, writer: Any) -> None:
             from vladrivebench._engine.runner import EpisodeFailure
@@ -1015,7 +1030,7 @@ class InterventionRun:
             with EpisodeWriter(path, meta) as writer:
                 result = run_episode(model, sim, controller, route, seed, policy=policy, writer=writer,
                                      model_name=c.model.name, simulator_name=c.simulator.name,
-                                     controller_name=c.controller.name)
+                                     controller_name=c.controller.name, episode=episode.episode)
                 writer.finish(result.to_json())
         except EpisodeFailure as exc:
             raise _episode_error(path, exc) from None

@@ -14,12 +14,16 @@ action follows the CoT alone. Waypoints are placed along the route's lane centre
 
 The CoT state is made by *reading the text* with the same function for generated and spliced CoTs, so a
 selfsplice has the same :meth:`ScriptedModel.state_digest` and, with the same RNG, the same trajectory.
+
+Its one piece of memory, the stop signs at which the ego has made its stop, is kept per episode under
+``obs.episode`` (:class:`~vladrivebench.EpisodeMemory`), so one instance serves a whole lockstep batch
+(:class:`~vladrivebench.BatchedModel`) and every row sees exactly what it would see alone.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -78,7 +82,13 @@ def cot_truth(cot: CoT) -> dict[str, Any] | None:
 
 
 class ScriptedModel:
-    """A VLA with known CoT error rates and CoT–action coupling ``alpha`` (see the module docstring)."""
+    """A VLA with known CoT error rates and CoT–action coupling ``alpha`` (see the module docstring).
+
+    Batched forms (``generate_cot_batch``, ``splice_cot_batch``, ``decode_action_batch``) give each row
+    exactly what the per-episode method gives it with the same RNG: the model is rules over the ground
+    truth, with no per-call overhead to amortise, so a batch is one instance and one call, not faster
+    arithmetic.
+    """
 
     trajectory_spec = TrajectorySpec(horizon_s=3.0, rate_hz=10.0)
 
@@ -97,8 +107,7 @@ class ScriptedModel:
         self.cruise_speed = _number("cruise_speed", cruise_speed, 0.5, MAX_SPEED, "in [0.5, 8.5] m/s")
         self.perception_range = _number("perception_range", perception_range, 1.0, 1000.0, "in [1, 1000] m")
         self.noise = _number("noise", noise, 0.0, 2.0, "in [0, 2] m/s")
-        self.seed: int | None = None
-        self._stops_made: set[str] = set()
+        self._stops_made: dict[str, set[str]] = {}
 
     def options(self) -> dict[str, Any]:
         """The model's options, as given to the factory."""
@@ -108,24 +117,32 @@ class ScriptedModel:
                 "perception_range": self.perception_range, "noise": self.noise}
 
     def reset(self, seed: int) -> None:
-        """Forget the episode's only memory: the stop signs at which the ego has made its stop."""
-        self.seed = seed
-        self._stops_made = set()
+        """Forget every episode's memory (the runner calls :meth:`start_episode` instead)."""
+        self._stops_made.clear()
+
+    def start_episode(self, episode: str, seed: int) -> None:
+        """Episode ``episode`` starts with no stop made."""
+        self._stops_made[episode] = set()
+
+    def end_episode(self, episode: str) -> None:
+        """Drop the memory of episode ``episode``."""
+        self._stops_made.pop(episode, None)
 
     def perceive(self, obs: Observation) -> World:
         """The ground truth within range, plus whether the stop at the critical stop sign has been made.
 
-        The memory is updated from observations only (never from a CoT or an RNG), and seeing the same
-        observation again changes nothing, so generating, splicing and decoding at a step in any number
-        and order give the same results.
+        The memory is the episode's (``obs.episode``), updated from observations only (never from a CoT
+        or an RNG), and seeing the same observation again changes nothing, so generating, splicing and
+        decoding at a step in any number and order give the same results.
         """
         world = perceive(obs, self.perception_range)
         critical = obs.ground_truth.critical_id
         if world.critical_kind != "stop_sign" or critical is None or world.distance is None:
             return world
+        stops_made = self._stops_made.setdefault(obs.episode, set())
         if stopped_at_sign(max(obs.ego.speed, 0.0), world.distance):
-            self._stops_made.add(critical)
-        return replace(world, stop_made=critical in self._stops_made)
+            stops_made.add(critical)
+        return replace(world, stop_made=critical in stops_made)
 
     # -- CoT ------------------------------------------------------------------------------------------
     def generate_cot(self, obs: Observation, rng: np.random.Generator) -> CoT:
@@ -146,6 +163,22 @@ class ScriptedModel:
         is taken as the ``decision`` answer with empty ``scene`` and ``objects``.
         """
         return self._cot(self._content(text), spliced=True)
+
+    # -- batched forms (lockstep episodes) -----------------------------------------------------------
+    def generate_cot_batch(self, observations: Sequence[Observation],
+                           rngs: Sequence[np.random.Generator]) -> list[CoT]:
+        """:meth:`generate_cot` for each observation, row ``i`` drawing from ``rngs[i]``."""
+        return [self.generate_cot(obs, rng) for obs, rng in zip(observations, rngs, strict=True)]
+
+    def splice_cot_batch(self, observations: Sequence[Observation], texts: Sequence[str | Mapping[str, str]],
+                         rngs: Sequence[np.random.Generator]) -> list[CoT]:
+        """:meth:`splice_cot` for each (observation, text) pair."""
+        return [self.splice_cot(obs, text, rng) for obs, text, rng in zip(observations, texts, rngs, strict=True)]
+
+    def decode_action_batch(self, observations: Sequence[Observation], cots: Sequence[CoT],
+                            rngs: Sequence[np.random.Generator]) -> list[Trajectory]:
+        """:meth:`decode_action` for each (observation, CoT) pair, row ``i``'s noise from ``rngs[i]``."""
+        return [self.decode_action(obs, cot, rng) for obs, cot, rng in zip(observations, cots, rngs, strict=True)]
 
     def _content(self, text: Any) -> str | dict[str, str]:
         if isinstance(text, str):
