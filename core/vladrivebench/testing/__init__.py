@@ -4,7 +4,9 @@ Everything a plugin's tests need without importing the core's internals:
 
 - **Conformance checks** (:mod:`vladrivebench.testing.conformance`), one per kind of plugin, each raising
   :class:`AssertionError` naming the plugin and what broke: :func:`check_model` (protocol, selfsplice
-  digest and bit-identical trajectory under a pinned RNG, token limits), :func:`check_bad_options` (one-line
+  digest and bit-identical trajectory under a pinned RNG, token limits), :func:`check_batched_model` (every
+  row of a lockstep batch gets what it gets alone, per-episode memory included; selfsplice bit-exact within
+  a batch), :func:`check_bad_options` (one-line
   :class:`~vladrivebench.VdbError` naming the option), :func:`check_simulator` (determinism and ground-truth
   invariants), :func:`check_labeler` (label values, ``label_batch`` order, version) and
   :func:`check_metric` (tables and plots whose every cell has a count).
@@ -60,6 +62,7 @@ _LAZY = {
     "read_directory": "vladrivebench._analysis.dataset",
     "compute_all": "vladrivebench._analysis.report",
     "check_model": "vladrivebench.testing.conformance",
+    "check_batched_model": "vladrivebench.testing.conformance",
     "check_bad_options": "vladrivebench.testing.conformance",
     "check_simulator": "vladrivebench.testing.conformance",
     "check_labeler": "vladrivebench.testing.conformance",
@@ -80,7 +83,7 @@ __all__ = [
     "ComponentSpec", "RegistrySpec", "RunConfig", "make_jobs", "run_sweep",
     "EpisodeWriter", "find_episodes", "read_episode", "label_items", "load_dataset", "read_directory", "compute_all",
     # conformance checks
-    "check_model", "check_bad_options", "check_simulator", "check_labeler", "check_metric", "DEFAULT_CONTROLS",
+    "check_model", "check_batched_model", "check_bad_options", "check_simulator", "check_labeler", "check_metric", "DEFAULT_CONTROLS",
     # sample inputs
     "observations", "synthetic_observation", "sample_label_items", "write_episode_dir", "KeywordLabeler",
 ]

@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from vladrivebench.errors import VdbError
-from vladrivebench.protocols import Labeler, Metric, Simulator, TokenCounter, VLAModel
+from vladrivebench.protocols import BatchedModel, Labeler, Metric, Simulator, TokenCounter, VLAModel
 from vladrivebench.records import (
     ACTOR_KINDS,
     LIGHT_COLOURS,
@@ -40,7 +40,7 @@ from vladrivebench.records import (
     TrajectorySpec,
 )
 
-__all__ = ["check_model", "check_bad_options", "check_simulator", "check_labeler", "check_metric",
+__all__ = ["check_model", "check_batched_model", "check_bad_options", "check_simulator", "check_labeler", "check_metric",
            "DEFAULT_CONTROLS"]
 
 
@@ -70,10 +70,110 @@ def check_model(model: Any, observations: Sequence[Observation], *, name: str = 
     _expect(bool(observations), what, "check_model needs at least one observation")
     for index, obs in enumerate(observations):
         at = f"{what} at observation {index} (step {obs.step})"
-        model.reset(seed)
+        _start(model, obs.episode, seed)
         own = _own_cot(model, obs, seed, at)
         _check_token_limit(model, own, at)
         _check_selfsplice(model, obs, own, seed, at)
+
+
+def check_batched_model(model: Any, episodes: Sequence[Sequence[Observation]], *, name: str = "model",
+                        seed: int = 0, tolerance: float = 1e-4) -> None:
+    """Check a :class:`~vladrivebench.BatchedModel` on two or more episodes' observations (consecutive
+    steps of each, e.g. recorded from a simulator).
+
+    Each episode runs alone through the per-episode methods, then all of them in lockstep through one
+    instance, one ``generate_cot_batch`` and one ``decode_action_batch`` per step, episodes that run out
+    leaving the batch, exactly as ``vdb run --batch`` drives them (episode ``i`` is named ``"episode i"``
+    in ``obs.episode``; an :class:`~vladrivebench.EpisodeMemory` model gets ``start_episode`` /
+    ``end_episode``, any other ``reset(seed)`` as each episode starts). Every row must give the CoT text it
+    gives alone and a trajectory within ``tolerance`` metres of its own (batched arithmetic may round
+    differently; memory shared between episodes shows here). With ``splice_cot_batch``, splicing the
+    batch's own CoTs must give their state digests and, with the same RNGs, their trajectories bit for bit.
+    """
+    what = f"model {name!r}"
+    _check_model_attributes(model, what)
+    _expect(isinstance(model, BatchedModel), what,
+            "does not implement the BatchedModel protocol (generate_cot_batch, decode_action_batch)")
+    runs = [[dataclasses.replace(obs, episode=f"episode {i}") for obs in episode] for i, episode in enumerate(episodes)]
+    _expect(len(runs) >= 2 and all(runs), what, "check_batched_model needs two or more episodes of observations")
+    alone = [_run_alone(model, i, run, seed) for i, run in enumerate(runs)]
+    for i in range(len(runs)):
+        _start(model, f"episode {i}", seed + i)
+    for step in range(max(len(run) for run in runs)):
+        rows = [i for i, run in enumerate(runs) if step < len(run)]
+        at = f"{what} at lockstep step {step} (episodes {rows})"
+        observations = [runs[i][step] for i in rows]
+        cots = _batched(model.generate_cot_batch(observations, [_step_rng(seed, i, step, "cot") for i in rows]),
+                        CoT, len(rows), at, "generate_cot_batch")
+        trajectories = _batched(model.decode_action_batch(observations, cots,
+                                                          [_step_rng(seed, i, step, "action") for i in rows]),
+                                Trajectory, len(rows), at, "decode_action_batch")
+        for i, cot, trajectory in zip(rows, cots, trajectories, strict=True):
+            _check_row(alone[i][step], cot, trajectory, tolerance, f"{at}: episode {i}")
+        if callable(getattr(model, "splice_cot_batch", None)):
+            _check_batch_selfsplice(model, rows, observations, cots, trajectories, seed, step, at)
+        for i, run in enumerate(runs):
+            if len(run) == step + 1:
+                _end(model, f"episode {i}")
+
+
+def _start(model: Any, episode: str, seed: int) -> None:
+    from vladrivebench._engine.runner import start_model_episode
+
+    start_model_episode(model, episode, seed)
+
+
+def _end(model: Any, episode: str) -> None:
+    from vladrivebench._engine.runner import end_model_episode
+
+    end_model_episode(model, episode)
+
+
+def _step_rng(seed: int, episode: int, step: int, purpose: str) -> np.random.Generator:
+    return np.random.default_rng([seed, episode, step, 0 if purpose == "cot" else 1])
+
+
+def _run_alone(model: Any, index: int, run: Sequence[Observation], seed: int) -> list[tuple[CoT, Trajectory]]:
+    _start(model, run[0].episode, seed + index)
+    outputs = []
+    for step, obs in enumerate(run):
+        cot = model.generate_cot(obs, _step_rng(seed, index, step, "cot"))
+        outputs.append((cot, model.decode_action(obs, cot, _step_rng(seed, index, step, "action"))))
+    _end(model, run[0].episode)
+    return outputs
+
+
+def _batched(results: Any, kind: type, size: int, at: str, call: str) -> list[Any]:
+    _expect(isinstance(results, list) and len(results) == size and all(isinstance(r, kind) for r in results), at,
+            f"{call} must return a list of {size} {kind.__name__}s, got {type(results).__name__} "
+            f"of {len(results) if hasattr(results, '__len__') else '?'}")
+    return results
+
+
+def _check_row(alone: tuple[CoT, Trajectory], cot: CoT, trajectory: Trajectory, tolerance: float, at: str) -> None:
+    own, own_trajectory = alone
+    _expect(cot.text == own.text and dict(cot.slots) == dict(own.slots), at,
+            f"the batched CoT {cot.text!r} differs from the CoT alone {own.text!r}")
+    problem = trajectory.problems()
+    _expect(problem is None, at, f"decode_action_batch gave a malformed trajectory: {problem}")
+    _expect(np.shape(trajectory.xy) == np.shape(own_trajectory.xy), at,
+            f"the batched trajectory has {len(trajectory.xy)} waypoints, alone {len(own_trajectory.xy)}")
+    gap = float(np.max(np.linalg.norm(np.asarray(trajectory.xy) - np.asarray(own_trajectory.xy), axis=1)))
+    _expect(gap <= tolerance, at, f"the batched trajectory is {gap:.3g} m from the one alone (tolerance {tolerance} m)")
+
+
+def _check_batch_selfsplice(model: Any, rows: list[int], observations: list[Observation], cots: list[CoT],
+                            trajectories: list[Trajectory], seed: int, step: int, at: str) -> None:
+    texts = [dict(cot.slots) if model.cot_format.is_slotted else cot.text for cot in cots]
+    spliced = _batched(model.splice_cot_batch(observations, texts, [_step_rng(seed, i, step, "cot") for i in rows]),
+                       CoT, len(rows), at, "splice_cot_batch")
+    again = model.decode_action_batch(observations, spliced, [_step_rng(seed, i, step, "action") for i in rows])
+    for i, own, splice, trajectory, redone in zip(rows, cots, spliced, trajectories, again, strict=True):
+        _expect(model.state_digest(splice) == model.state_digest(own), f"{at}: episode {i}",
+                "splice_cot_batch of the batch's own CoT changed the state digest (a selfsplice within a batch "
+                "must be bit-identical)")
+        _expect(_same_trajectory(trajectory, redone), f"{at}: episode {i}",
+                "the batch's own CoT, spliced back, gave a different trajectory with the same RNG")
 
 
 def _check_model_attributes(model: Any, what: str) -> None:

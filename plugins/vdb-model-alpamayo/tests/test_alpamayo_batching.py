@@ -197,3 +197,14 @@ def test_vdb_intervene_batched_keeps_the_gate_exact(capsys, tmp_path, mode):
     assert results["valid"] and gate["steps_checked"] > 0 and gate["steps_failed"] == 0
     assert gate["max_trajectory_diff"] == 0.0
     assert gate["fidelity_steps_checked"] == gate["steps_checked"] and gate["fidelity_steps_failed"] == 0
+
+
+def test_the_model_passes_the_batched_conformance_check(model):
+    """Episodes of different lengths and prompts in lockstep through the public check (rows alone = in the
+    batch up to rounding, selfsplice of the batch's own CoTs bit-identical)."""
+    from vladrivebench.testing import check_batched_model
+
+    episodes = [[observation(step=s, speed=2.0 + s, seed=10 * e + s, route=route) for s in range(length)]
+                for e, (length, route) in enumerate(((2, "follow the lane"), (1, "turn left at the junction, then "
+                                                                               "keep right"), (2, "stop")))]
+    check_batched_model(model, episodes, name="alpamayo", tolerance=TRAJECTORY_TOLERANCE_M)

@@ -90,3 +90,11 @@ def test_cuda_device_runs_batched():
     kv = KVModel(device="cuda")
     cots = kv.generate_cot_batch(OBSERVATIONS, rngs(0))
     assert all(t.problems() is None for t in kv.decode_action_batch(OBSERVATIONS, cots, rngs(1)))
+
+
+def test_the_reference_models_pass_the_batched_conformance_check(model):
+    """Three episodes of rendered frames of different lengths in lockstep through the public check."""
+    from vladrivebench.testing import check_batched_model, observations
+
+    episodes = [observations(n, height=80, width=160, seed=seed) for seed, n in ((0, 3), (1, 1), (2, 2))]
+    check_batched_model(model, episodes, name=type(model).__name__, tolerance=TOLERANCE_M)
