@@ -198,7 +198,7 @@ class BatchedModel(Protocol):
     One instance serves every episode of a batch, so ``reset(seed)``, called whenever an episode joins
     the batch, must not forget what the other episodes still need. A batched model keeps no per-episode
     memory outside the CoTs it returns, unless it also declares :class:`EpisodeMemory` and keys that memory
-    by ``obs.episode``. (A model that declares neither runs under ``--batch`` with one instance per lane,
+    by ``obs.episode``. (A model that is not a ``BatchedModel`` runs under ``--batch`` with one instance per lane,
     through its per-episode methods.) A batched model may also offer
     ``splice_cot_batch(observations, texts, rngs)``, feeding the texts exactly as ``generate_cot_batch``
     feeds its own, so that a selfsplice within a batch is bit-identical (the reference models do).
