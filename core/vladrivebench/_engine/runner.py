@@ -181,7 +181,7 @@ def run_episode(
                 break
             with _blame(names, "simulator", "step", where, step):
                 obs = with_episode(simulator.step(control), name)
-    except BaseException:
+    except Exception:  # an interrupt ends the process: nothing to tell the model
         _end_after_failure(model, name)
         raise
     with _blame(names, "model", "end_episode", where, None):
