@@ -21,6 +21,9 @@ scenario's outcome; :func:`vladrivebench.world._motion.scripted_users`); cars, l
 
 from __future__ import annotations
 
+import threading
+from collections import OrderedDict
+
 from vladrivebench import Control, Observation, Scenario
 from vladrivebench.world import (
     DT,
@@ -41,6 +44,24 @@ from vladrivebench.world import (
 
 SUPPORTED_FEATURES = WORLD_FEATURES
 """Every scenario feature (see :meth:`Scenario.features`) this simulator represents: the shared world's."""
+
+SHARED_ROADS = 32
+"""How many road geometries the simulators of one process share (least recently used dropped first)."""
+_shared_roads: OrderedDict[tuple[str, str], RoadGeometry] = OrderedDict()
+_shared_roads_lock = threading.Lock()  # the pipelined executor steps batch jobs on threads
+
+
+def shared_road(scenario: Scenario) -> RoadGeometry:
+    """The road of ``scenario``, built once per process: a road depends on the scenario alone and is never
+    changed, so the simulators of a lockstep batch (one per episode) share it, and with it the camera's
+    per-road scenery."""
+    key = (scenario.id, repr(scenario.to_json()))
+    with _shared_roads_lock:
+        road = _shared_roads.pop(key, None) or build_road(scenario)
+        _shared_roads[key] = road  # the most recently used last
+        while len(_shared_roads) > SHARED_ROADS:
+            _shared_roads.popitem(last=False)
+        return road
 
 
 class KinematicSimulator:
@@ -68,7 +89,6 @@ class KinematicSimulator:
         self.position_jitter = float(position_jitter)
         self.rig = RigRecorder(specs, frames, stride, poses, render)
         self.camera = self.rig.main
-        self._roads: dict[tuple[str, str], RoadGeometry] = {}
         self.scenario: Scenario | None = None
         self._terminal: str | None = None
 
@@ -77,7 +97,7 @@ class KinematicSimulator:
         """Start an episode of ``scenario``; ``seed`` only jitters pedestrian/animal start positions."""
         check_supported(scenario, "kinematic", SUPPORTED_FEATURES)
         self.scenario = scenario
-        self.road = self._road(scenario)
+        self.road = shared_road(scenario)
         self.users = scripted_users(scenario, seed, self.position_jitter)
         self.ego = ego_at_start(self.road.route, scenario.ego.speed)
         crossing = {user.spec.id: user.s for user in self.users if user.spec.motion == "cross"}
@@ -100,15 +120,9 @@ class KinematicSimulator:
         return self._observe(collisions)
 
     def close(self) -> None:
-        self._roads.clear()
+        """Nothing to release: the roads are shared by the process's simulators (:func:`shared_road`)."""
 
     # -- internals ----------------------------------------------------------------------------------
-    def _road(self, scenario: Scenario) -> RoadGeometry:
-        key = (scenario.id, repr(scenario.to_json()))
-        if key not in self._roads:
-            self._roads[key] = build_road(scenario)
-        return self._roads[key]
-
     def _actors(self):
         route = self.road.route
         return tuple(user.actor(route) for user in self.users)
