@@ -322,6 +322,13 @@ class MPCController:
             self._matrix_key, self._matrix = key, matrix
         return self._matrix
 
+    def _curvature_constants(self, n: int) -> tuple[np.ndarray, np.ndarray]:
+        """:func:`_curvature_constants_of` for ``n`` steps and these weights (built once per ``n``)."""
+        key = (n, self.weights)
+        if getattr(self, "_curvature_key", None) != key:
+            self._curvature_key, self._curvature_parts = key, _curvature_constants_of(n, self.weights)
+        return self._curvature_parts
+
     def _plan_curvature(self, path: ReferencePath, s_ref: np.ndarray, travelled: float) -> float:
         """First curvature of the plan tracking the path's lateral position and heading."""
         # Distance covered per step: the first as planned, then at the trajectory's pace, but always
@@ -335,22 +342,20 @@ class MPCController:
         n, w = len(step_len), self.weights
         # Errors relative to the path (e_y: ego left of it, e_ψ: ego heading minus path heading):
         # e_ψ_{k+1} = e_ψ0 + Σ_{j≤k} Δs_j (κ_j − κref_j) ;  e_y_{k+1} = e_y0 + Σ_{i≤k} Δs_i e_ψ_i
-        lower = (np.arange(n)[:, None] >= np.arange(n)[None, :]).astype(float)
+        lower, effort_rows = self._curvature_constants(n)
         heading_rows = lower * step_len[None, :]
         heading_offset = heading0 - heading_rows @ kappa_ref
         # e_ψ before step i (i = 0..n-1): heading0 for i = 0, else row i-1.
         before = np.vstack([np.zeros((1, n)), heading_rows[:-1]])
         before_offset = np.concatenate([[heading0], heading_offset[:-1]])
-        lateral_rows = (lower * step_len[None, :]) @ before
-        lateral_offset = lateral0 + (lower * step_len[None, :]) @ before_offset
-        rate_rows = np.eye(n) - np.eye(n, k=-1)
+        lateral_rows = heading_rows @ before
+        lateral_offset = lateral0 + heading_rows @ before_offset
         rate_target = np.zeros(n)
         rate_target[0] = self._last_curvature
         matrix = np.vstack([
             math.sqrt(w.heading) * heading_rows,
             math.sqrt(w.lateral) * lateral_rows,
-            math.sqrt(w.curvature) * np.eye(n),
-            math.sqrt(w.curvature_rate) * rate_rows,
+            effort_rows,
         ])
         target = np.concatenate([
             -math.sqrt(w.heading) * heading_offset,
@@ -360,6 +365,17 @@ class MPCController:
         ])
         bound = self.max_curvature
         return float(np.clip(bounded_least_squares(matrix, target, -bound, bound)[0], -bound, bound))
+
+
+def _curvature_constants_of(n: int, weights: MPCWeights) -> tuple[np.ndarray, np.ndarray]:
+    """The parts of the curvature plan over ``n`` steps that do not change from call to call: the
+    lower-triangular ones of the running sums, and the weighted curvature and curvature-rate rows."""
+    lower = (np.arange(n)[:, None] >= np.arange(n)[None, :]).astype(float)
+    rate_rows = np.eye(n) - np.eye(n, k=-1)
+    effort_rows = np.vstack([math.sqrt(weights.curvature) * np.eye(n), math.sqrt(weights.curvature_rate) * rate_rows])
+    for array in (lower, effort_rows):
+        array.flags.writeable = False
+    return lower, effort_rows
 
 
 def bounded_least_squares(matrix: np.ndarray, target: np.ndarray, lower: float, upper: float) -> np.ndarray:
