@@ -210,9 +210,13 @@ def _shallow_fields(record: Any) -> dict[str, Any]:
     return {f.name: getattr(record, f.name) for f in dataclasses.fields(record)}
 
 
+_ENCODER = json.JSONEncoder(separators=(",", ":"), allow_nan=False, default=_json_default)
+"""What ``json.dumps`` with these options builds on every call, built once (it keeps no state between calls)."""
+
+
 def _dumps(value: Any) -> bytes:
     try:
-        text = json.dumps(value, separators=(",", ":"), allow_nan=False, default=_json_default)
+        text = _ENCODER.encode(value)
     except ValueError as exc:  # NaN or infinity somewhere
         raise ValueError(f"cannot log a non-finite number ({exc})") from None
     return text.encode("utf-8")
