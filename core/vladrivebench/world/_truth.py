@@ -86,6 +86,7 @@ class TruthTracker:
         self._prev_front: float | None = None
         self._stopped_before_sign = False
         self._last_extents: dict[Actor, RouteExtent] = {}
+        self._last_ego_s: tuple[float | None, EgoState, float] | None = None
         critical = scenario.actor(scenario.critical) if scenario.critical else None
         self.critical_fixed_s: float | None = None
         if scenario.light is not None and scenario.critical == scenario.light.id:
@@ -99,9 +100,13 @@ class TruthTracker:
         """Route position of the ego's centre, searched near the previous one (routes may pass close to
         themselves in a junction)."""
         prev = self._s_centre
+        last = self._last_ego_s
+        if last is not None and last[1] is ego and last[0] == prev:
+            return last[2]  # asked again within a step (the simulator moves its road users by it first)
         lo = None if prev is None else prev - _SEARCH_BEHIND
         hi = None if prev is None else prev + _SEARCH_AHEAD + ego.speed
         s, _ = self.road.route.project(np.array([[ego.x, ego.y]]), lo, hi)
+        self._last_ego_s = (prev, ego, float(s[0]))
         return float(s[0])
 
     def _extent(self, actor: Actor) -> RouteExtent:

@@ -116,8 +116,8 @@ class KinematicSimulator:
         self.ego = apply_control(self.ego, control, self.dt)
         self._move_users()
         self.step_index += 1
-        collisions = colliding(self.ego, self._actors())
-        return self._observe(collisions)
+        actors = self._actors()
+        return self._observe(colliding(self.ego, actors), actors)
 
     def close(self) -> None:
         """Nothing to release: the roads are shared by the process's simulators (:func:`shared_road`)."""
@@ -133,8 +133,9 @@ class KinematicSimulator:
             user.check_trigger(front)
             user.advance(self.road.route, self.ego, self.dt)
 
-    def _observe(self, collisions: tuple[str, ...]) -> Observation:
-        actors = self._actors()
+    def _observe(self, collisions: tuple[str, ...], actors: tuple | None = None) -> Observation:
+        """The observation of the current state; ``actors``: the road users as actors, when already made."""
+        actors = self._actors() if actors is None else actors
         truth = self.truth.observe(self.step_index, self.ego, actors, collisions)
         self._terminal = truth.terminal
         image, cameras, poses = self.rig.observe(self.step_index, truth.time, self.ego, self.road, truth.actors)
