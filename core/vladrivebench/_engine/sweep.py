@@ -565,7 +565,11 @@ def run_sweep(config: RunConfig, out: Path | str, *, executor: Any, executor_inf
     in_process = bool(getattr(executor, "in_process", False))
     try:
         build_components(registry, components, keep=True)
+        check_lane_instances(registry, (config.simulator, config.controller), config.batch)
         note = unbatched_note(config, _component(registry, config.model))
+    except VdbError:
+        release_components()  # nothing runs: hold no simulator (a SUMO slot) for the next command
+        raise
     finally:
         if not in_process:
             release_components()
@@ -624,6 +628,29 @@ def build_components(registry: Registry, components: Sequence[ComponentSpec], *,
     finally:
         if not keep:
             release_components()
+
+
+def check_lane_instances(registry: Registry, components: Sequence[ComponentSpec], batch: int) -> None:
+    """``--batch`` above 1 gives every episode of a batch its own simulator and controller, all in one process:
+    build a second instance of each beside the first (already built) before anything is written, so that one
+    which allows a single instance per process (``sumo``: libsumo holds one simulation) is one line, not a
+    run whose every episode fails."""
+    if batch < 2:
+        return
+    for spec in components:
+        second = None
+        try:
+            second = create_component(registry, spec)
+        except Exception as exc:
+            reason = " ".join(str(exc).split()) or type(exc).__name__
+            raise ConfigError(f"--batch {batch} runs each episode of a batch with its own {spec.kind} in one process, "
+                              f"and a second {spec.kind} {spec.name!r} cannot be built beside the first ({reason}); "
+                              f"expected --batch 1 (and --executor process --workers N to run episodes in "
+                              f"parallel)") from None
+        finally:
+            close = getattr(second, "close", None)
+            if callable(close):
+                close()
 
 
 def trusted_result(path: str) -> dict | None:

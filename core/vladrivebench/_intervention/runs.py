@@ -711,6 +711,15 @@ class InterventionRun:
         self.model_name = self.config.model.name
         self.splicer = Splicer(model, self.library, {}, self.model_name)
         self.preflight(harvested=False)
+        if self.lockstep():
+            from vladrivebench._engine.sweep import check_lane_instances
+
+            try:
+                check_lane_instances(self.registry, (self.config.simulator, self.config.controller),
+                                     self.config.batch)
+            except VdbError:
+                self.close()  # nothing runs: hold no simulator (a SUMO slot) for the next command
+                raise
         prepare_out(self.out, manifest, optional=(SETTINGS_KEY,))
         note = self.unbatched_note()
         if note and self.on_note is not None:

@@ -124,5 +124,21 @@ def test_vdb_run_reports_a_bad_sumo_option_on_one_line_with_status_2(tmp_path, c
     assert len(err) == 1 and err[0].startswith("vdb: error: ") and "option pedestrians" in err[0]
 
 
+@pytest.mark.parametrize("command", [["run", "--scenarios", "P.1", "--seeds", "2"],
+                                     ["intervene", "--route", "E.1", "--mode", "closed-loop", "--seeds", "2"]])
+def test_a_batch_needing_two_simulations_in_one_process_is_one_line_before_anything_is_written(tmp_path, capsys,
+                                                                                             command, sumo_sim):
+    plugins = (core_plugin(), ("sumo", vdb_sim_sumo.plugin), ("scripted", vdb_model_scripted.plugin))
+    with isolated_registry(*plugins):
+        code = run_cli([*command, "--model", "scripted", "--sim", "sumo", "--batch", "2",
+                        "--out", str(tmp_path / "run"), "--quiet"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and not (tmp_path / "run").exists()
+    assert len(err) == 1 and err[0].startswith("vdb: error: --batch 2 runs each episode of a batch with its own "
+                                               "simulator in one process, and a second simulator 'sumo' cannot")
+    assert err[0].endswith("expected --batch 1 (and --executor process --workers N to run episodes in parallel)")
+    sumo_sim().close()  # the refused command holds no simulation
+
+
 def test_every_error_of_this_plugin_is_a_user_error():
     assert issubclass(SumoBusyError, VdbError) and issubclass(SumoUnavailableError, VdbError)
