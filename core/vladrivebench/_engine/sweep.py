@@ -265,11 +265,18 @@ def _component(registry: Registry, spec: ComponentSpec) -> Any:
 def forget_component(kind: str) -> None:
     """Drop (and close, if it can be closed) the cached component of ``kind`` in this thread."""
     cached = _THREAD.by_kind.pop(kind, None)
-    close = getattr(cached[1], "close", None) if cached else None
+    if cached is not None:
+        close_quietly(cached[1])
+
+
+def close_quietly(component: Any) -> None:
+    """Close ``component`` if it can be closed; a failure to close is not reported (closing a broken
+    component must not hide the episode's or the command's own outcome)."""
+    close = getattr(component, "close", None)
     if callable(close):
         try:
             close()
-        except Exception:  # closing a broken component must not hide the episode's own outcome
+        except Exception:
             pass
 
 
@@ -363,12 +370,8 @@ def _forget_lane(kind: str, lane: int) -> None:
         forget_component(kind)
         return
     cached = _THREAD.by_lane.pop((kind, lane), None)
-    close = getattr(cached[1], "close", None) if cached else None
-    if callable(close):
-        try:
-            close()
-        except Exception:
-            pass
+    if cached is not None:
+        close_quietly(cached[1])
 
 
 def run_batch_job(job: BatchJob) -> list[EpisodeOutcome]:
@@ -648,9 +651,7 @@ def check_lane_instances(registry: Registry, components: Sequence[ComponentSpec]
                               f"expected --batch 1 (and --executor process --workers N to run episodes in "
                               f"parallel)") from None
         finally:
-            close = getattr(second, "close", None)
-            if callable(close):
-                close()
+            close_quietly(second)
 
 
 def trusted_result(path: str) -> dict | None:

@@ -354,7 +354,9 @@ class PlannedEpisode:
     @property
     def episode(self) -> str:
         """The runner's name of the episode (``obs.episode``): unique among a run's episodes."""
-        return f"{self.route.id} seed {self.seed} {self.name}"
+        from vladrivebench._engine.runner import episode_name
+
+        return f"{episode_name(self.route, self.seed)} {self.name}"
 
 
 @runtime_checkable
